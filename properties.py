@@ -1,0 +1,73 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Settings shared by the sidebar panel (scene PropertyGroup) and the operator (redo panel, scripts)."""
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+
+def settings_annotations():
+    """Fresh property definitions; the operator and the PropertyGroup each get their own copy."""
+    return {
+        "epsilon": FloatProperty(
+            name="Loss Bound", description="Perceptual loss bound epsilon per triangle (GMSD, paper Eq. 7)",
+            default=0.01, min=1e-4, max=0.5, precision=4, step=0.1),
+        "resolution_mode": EnumProperty(
+            name="Resolution", description="How the new texture's resolution is chosen",
+            items=(("COST", "Relative Cost", "Resolution from a target relative cost (paper Eq. 20-21)"),
+                   ("EXPLICIT", "Explicit", "A fixed texture resolution")),
+            default="COST"),
+        "target_cost": FloatProperty(
+            name="Relative Cost", description="Texel count of the result relative to the input (paper Eq. 21)",
+            default=0.3, min=0.01, max=4.0, precision=3),
+        "resolution": IntProperty(
+            name="Texture Size", description="Width and height of the new image in pixels",
+            default=1024, min=8, max=16384),
+        "iterations": IntProperty(
+            name="Evaluations", description="Loss evaluations per triangle (Bayesian optimization budget)",
+            default=100, min=10, max=1000),
+        "screen_pixels": IntProperty(
+            name="Screen Pixels", description="Side of the per-triangle orthographic view (paper App. A)",
+            default=64, min=16, max=256),
+        "margin": IntProperty(
+            name="Margin", description="Packing and bake margin in pixels of the new image",
+            default=4, min=0, max=64),
+        "workers": IntProperty(
+            name="Workers", description="Worker processes for the triangle-wise stage (0: one per core)",
+            default=0, min=0, max=256),
+        "seed": IntProperty(name="Seed", description="Fixes every random choice", default=0, min=0),
+        "uv_map_name": StringProperty(
+            name="UV Map", description="Name of the new UV map", default="PerceptualUV"),
+        "image_name": StringProperty(
+            name="Image", description="Name of the new image (empty: derived from the object)", default=""),
+        "use_material_copy": BoolProperty(
+            name="Use in Material Copy",
+            description="Assign a copy of the material that samples the new image through the new UV map",
+            default=True),
+    }
+
+
+class PerceptualUVSettings(bpy.types.PropertyGroup):
+    __annotations__ = settings_annotations()
+
+
+class PerceptualUVPreferences(bpy.types.AddonPreferences):
+    bl_idname = __package__
+
+    def draw(self, context):
+        from .core._jit import cache_dir
+
+        self.layout.label(text=f"Compiled kernels are cached in {cache_dir()}")
+
+
+classes = (PerceptualUVSettings, PerceptualUVPreferences)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Scene.perceptual_uv = PointerProperty(type=PerceptualUVSettings)
+
+
+def unregister():
+    del bpy.types.Scene.perceptual_uv
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
