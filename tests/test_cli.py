@@ -1,0 +1,73 @@
+"""Argument handling of both CLI forms: ``python -m perceptual_uv`` and ``blender -b --python cli.py -- ...``."""
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+from perceptual_uv.cli import blender_argv, main, parse_args
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SPOT = ROOT / "tests" / "data" / "spot" / "spot_triangulated.obj"
+
+
+def run_module(*args):
+    return subprocess.run([sys.executable, "-m", "perceptual_uv", *args], capture_output=True, text=True, timeout=120)
+
+
+def run_as_blender_script(*blender_args):
+    """What ``blender -b scene.blend --python cli.py -- ...`` does: run the file as __main__ with Blender's argv."""
+    code = ("import runpy, sys; sys.argv = sys.argv[1:]; "
+            f"runpy.run_path({str(ROOT / 'cli.py')!r}, run_name='__main__')")
+    argv = ["blender", "-b", "scene.blend", "--python", str(ROOT / "cli.py"), *blender_args]
+    return subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=120,
+                          cwd="/")
+
+
+def test_module_help_lists_both_commands():
+    result = run_module("--help")
+    assert result.returncode == 0
+    assert "optimize" in result.stdout and "evaluate" in result.stdout
+
+
+def test_blender_argv_takes_what_follows_the_double_dash():
+    argv = ["blender", "-b", "a.blend", "--python", "cli.py", "--", "optimize", "in.obj", "--out", "o.blend"]
+    assert blender_argv(argv) == ["optimize", "in.obj", "--out", "o.blend"]
+    assert blender_argv(["blender", "-b", "a.blend", "--python", "cli.py"]) == []
+
+
+def test_blender_form_parses_arguments_after_double_dash():
+    result = run_as_blender_script("--", "optimize", "/nonexistent/model.obj", "--out", "out.blend")
+    assert result.returncode == 2
+    assert result.stderr.strip() == "perceptual_uv: error: argument IN: /nonexistent/model.obj: no such file"
+
+
+def test_blender_form_help_and_missing_arguments():
+    assert run_as_blender_script("--", "--help").returncode == 0
+    missing = run_as_blender_script()
+    assert missing.returncode == 2 and "required" in missing.stderr
+    assert "Traceback" not in missing.stderr
+
+
+def test_optimize_defaults_follow_the_design_contract():
+    args = parse_args(["optimize", str(SPOT), "--out", "x.blend"])
+    assert (args.epsilon, args.cost, args.resolution, args.iterations, args.seed) == (0.01, 0.3, None, 100, 0)
+
+
+def test_cost_and_resolution_are_exclusive():
+    assert main(["optimize", str(SPOT), "--out", "x.blend", "--cost", "0.3", "--resolution", "512"]) == 2
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["optimize", "model.fbx", "--out", "x.blend"], "unsupported input type"),
+    (["optimize", str(SPOT), "--out", "x.png"], "unsupported output type"),
+    (["optimize", str(SPOT), "--out", "x.blend", "--epsilon", "0"], "--epsilon 0.0: must be in (0, 1)"),
+    (["optimize", str(SPOT), "--out", "x.blend", "--resolution", "4"], "--resolution 4"),
+    (["optimize", str(SPOT), "--out", "x.blend", "--iterations", "3"], "--iterations 3"),
+    (["evaluate", str(SPOT), "--uv", "UVMap", "--costs", "0.1,abc"], "comma-separated"),
+    (["evaluate", str(SPOT), "--uv", "UVMap", "--costs", "0,0.5"], "(0, 4]"),
+])
+def test_bad_input_is_one_line_and_exit_2(args, fragment, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and err.count("\n") == 1 and err.startswith("perceptual_uv: error: ")
