@@ -1,0 +1,156 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Bake an object's base-colour texture from one UV map into a new image on another (Cycles, CPU).
+
+Everything happens on temporary copies in a temporary scene: the object, its mesh, materials, images and the
+user's scene settings are left exactly as they were; the only thing that stays is the new image.
+"""
+import contextlib
+
+import bpy
+import numpy as np
+
+from .material import base_color_image_node
+
+__all__ = ["bake_base_color"]
+
+
+@contextlib.contextmanager
+def _temporary_ids():
+    """Collects ID blocks created inside; removes them all on exit, whatever happens."""
+    created = []
+    try:
+        yield created
+    finally:
+        for block in reversed(created):
+            collection = {bpy.types.Object: bpy.data.objects, bpy.types.Mesh: bpy.data.meshes,
+                          bpy.types.Material: bpy.data.materials, bpy.types.Image: bpy.data.images,
+                          bpy.types.Scene: bpy.data.scenes}[type(block)]
+            with contextlib.suppress(ReferenceError):
+                collection.remove(block)
+
+
+def _emission_material(created, source_uv, image, constant, channel, target):
+    """A material that emits ``image`` (read raw, through ``source_uv``) or ``constant``; target node active."""
+    material = bpy.data.materials.new("perceptual_uv_bake")
+    created.append(material)
+    tree = material.node_tree
+    tree.nodes.clear()
+    emission = tree.nodes.new("ShaderNodeEmission")
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    tree.links.new(emission.outputs["Emission"], output.inputs["Surface"])
+    if image is None:
+        value = constant[3] if channel == "ALPHA" else constant[:3]
+        emission.inputs["Color"].default_value = (value,) * 3 + (1.0,) if channel == "ALPHA" else (*value, 1.0)
+    else:
+        raw = image.copy()  # read the stored values: Non-Color on a copy, the user's image keeps its colour space
+        created.append(raw)
+        raw.colorspace_settings.name = "Non-Color"
+        uv_node = tree.nodes.new("ShaderNodeUVMap")
+        uv_node.uv_map = source_uv
+        texture = tree.nodes.new("ShaderNodeTexImage")
+        texture.image, texture.interpolation, texture.extension = raw, "Linear", "REPEAT"
+        tree.links.new(uv_node.outputs["UV"], texture.inputs["Vector"])
+        tree.links.new(texture.outputs["Alpha" if channel == "ALPHA" else "Color"], emission.inputs["Color"])
+    target_node = tree.nodes.new("ShaderNodeTexImage")
+    target_node.image = target
+    tree.nodes.active = target_node
+    return material
+
+
+def _slot_sources(obj):
+    """Per material slot: (image or None, constant RGBA used when there is no image)."""
+    sources = []
+    for slot in obj.material_slots or [None]:
+        material = slot.material if slot else None
+        node = base_color_image_node(material)
+        constant = (0.8, 0.8, 0.8, 1.0)
+        if node is None and material is not None and material.node_tree is not None:
+            for principled in (n for n in material.node_tree.nodes if n.type == "BSDF_PRINCIPLED"):
+                constant = tuple(principled.inputs["Base Color"].default_value)
+                break
+        sources.append((node.image if node else None, constant))
+    return sources
+
+
+def _has_alpha(image):
+    if image is None or image.channels < 4 or image.alpha_mode == "NONE":
+        return False
+    pixels = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    return bool(pixels[3::4].min() < 1.0)
+
+
+def _bake_channel(obj, *, source_uv, target_uv, resolution, margin, channel, sources):
+    """Bake one channel group ("COLOR" or "ALPHA") into a float (r, r, 4) array."""
+    with _temporary_ids() as created:
+        target = bpy.data.images.new("perceptual_uv_bake_target", resolution, resolution, alpha=False,
+                                     float_buffer=True)
+        created.append(target)
+        target.colorspace_settings.name = "Non-Color"
+        scene = bpy.data.scenes.new("perceptual_uv_bake")
+        created.append(scene)
+        scene.render.engine = "CYCLES"
+        scene.cycles.device = "CPU"
+        scene.cycles.samples = 1
+        mesh = obj.data.copy()
+        created.append(mesh)
+        proxy = bpy.data.objects.new("perceptual_uv_bake", mesh)
+        created.append(proxy)
+        proxy.matrix_world = obj.matrix_world
+        scene.collection.objects.link(proxy)
+        if not mesh.materials:
+            mesh.materials.append(None)
+        for index, (image, constant) in enumerate(sources[:len(mesh.materials)]):
+            mesh.materials[index] = _emission_material(created, source_uv, image, constant, channel, target)
+        view_layer = scene.view_layers[0]
+        with bpy.context.temp_override(scene=scene, view_layer=view_layer, active_object=proxy, object=proxy,
+                                       selected_objects=[proxy], selected_editable_objects=[proxy]):
+            proxy.select_set(True, view_layer=view_layer)
+            view_layer.objects.active = proxy
+            bpy.ops.object.bake(type="EMIT", uv_layer=target_uv, margin=margin, margin_type="EXTEND",
+                                use_clear=True, target="IMAGE_TEXTURES")
+        pixels = np.empty(resolution * resolution * 4, dtype=np.float32)
+        target.pixels.foreach_get(pixels)
+    return pixels.reshape(resolution, resolution, 4)
+
+
+def bake_base_color(obj, *, source_uv, target_uv, resolution, margin, image_name):
+    """Bake ``obj``'s base-colour texture(s) through ``source_uv`` into a new image laid out by ``target_uv``.
+
+    Parameters
+    ----------
+    obj : bpy.types.Object
+        A mesh object whose material slots feed their Base Color from image textures (slots without an
+        image bake their constant Base Color).
+    source_uv, target_uv : str
+        Names of the UV maps the original texture is read through and the new one is written on.
+    resolution : int
+        Width and height of the new image.
+    margin : int
+        Bake margin in pixels (extended from the island borders).
+    image_name : str
+        Name of the new image data block (Blender makes it unique).
+
+    Returns
+    -------
+    bpy.types.Image
+        A new 8-bit sRGB image whose stored values are the bilinear samples of the source's stored values;
+        alpha is baked too when a source image uses it.
+    """
+    if obj.type != "MESH":
+        raise ValueError(f"'{obj.name}' is not a mesh")
+    for name in (source_uv, target_uv):
+        if name not in obj.data.uv_layers:
+            raise ValueError(f"'{obj.name}' has no UV map '{name}'")
+    sources = _slot_sources(obj)
+    common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=margin, sources=sources)
+    pixels = _bake_channel(obj, channel="COLOR", **common)
+    use_alpha = any(_has_alpha(image) for image, _ in sources)
+    if use_alpha:
+        pixels[..., 3] = _bake_channel(obj, channel="ALPHA", **common)[..., 0]
+    else:
+        pixels[..., 3] = 1.0
+    image = bpy.data.images.new(image_name, resolution, resolution, alpha=use_alpha)
+    image.pixels.foreach_set(np.clip(pixels, 0.0, 1.0).ravel())
+    image.update()
+    return image
