@@ -29,6 +29,33 @@ def _temporary_ids():
                 collection.remove(block)
 
 
+def _raw_copy(image):
+    """A float, Non-Color copy of ``image``'s stored values, so the bake reads them without a colour transform.
+
+    Works the same for file, packed and generated images; the user's image keeps its colour space.
+    """
+    width, height = image.size
+    if width == 0 or height == 0:
+        raise ValueError(f"image '{image.name}' has no pixels (missing file '{image.filepath}'?)")
+    pixels = np.empty(width * height * image.channels, dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    if image.channels != 4:
+        pixels = _to_rgba(pixels.reshape(-1, image.channels)).ravel()
+    raw = bpy.data.images.new("perceptual_uv_bake_source", width, height, alpha=True, float_buffer=True)
+    raw.colorspace_settings.name = "Non-Color"
+    raw.pixels.foreach_set(pixels)
+    raw.pack()  # keeps the pixels through the render's image reload
+    return raw
+
+
+def _to_rgba(pixels):
+    rgba = np.ones((len(pixels), 4), dtype=np.float32)
+    rgba[:, :3] = pixels[:, :3] if pixels.shape[1] >= 3 else pixels[:, :1]
+    if pixels.shape[1] in (2, 4):
+        rgba[:, 3] = pixels[:, -1]
+    return rgba
+
+
 def _emission_material(created, source_uv, image, constant, channel, target):
     """A material that emits ``image`` (read raw, through ``source_uv``) or ``constant``; target node active."""
     material = bpy.data.materials.new("perceptual_uv_bake")
@@ -42,9 +69,8 @@ def _emission_material(created, source_uv, image, constant, channel, target):
         value = constant[3] if channel == "ALPHA" else constant[:3]
         emission.inputs["Color"].default_value = (value,) * 3 + (1.0,) if channel == "ALPHA" else (*value, 1.0)
     else:
-        raw = image.copy()  # read the stored values: Non-Color on a copy, the user's image keeps its colour space
+        raw = _raw_copy(image)
         created.append(raw)
-        raw.colorspace_settings.name = "Non-Color"
         uv_node = tree.nodes.new("ShaderNodeUVMap")
         uv_node.uv_map = source_uv
         texture = tree.nodes.new("ShaderNodeTexImage")
@@ -80,8 +106,8 @@ def _has_alpha(image):
     return bool(pixels[3::4].min() < 1.0)
 
 
-def _bake_channel(obj, *, source_uv, target_uv, resolution, margin, channel, sources):
-    """Bake one channel group ("COLOR" or "ALPHA") into a float (r, r, 4) array."""
+def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel):
+    """Bake one channel group ("COLOR" or "ALPHA") of ``objects`` into a float (r, r, 4) array."""
     with _temporary_ids() as created:
         target = bpy.data.images.new("perceptual_uv_bake_target", resolution, resolution, alpha=False,
                                      float_buffer=True)
@@ -92,21 +118,26 @@ def _bake_channel(obj, *, source_uv, target_uv, resolution, margin, channel, sou
         scene.render.engine = "CYCLES"
         scene.cycles.device = "CPU"
         scene.cycles.samples = 1
-        mesh = obj.data.copy()
-        created.append(mesh)
-        proxy = bpy.data.objects.new("perceptual_uv_bake", mesh)
-        created.append(proxy)
-        proxy.matrix_world = obj.matrix_world
-        scene.collection.objects.link(proxy)
-        if not mesh.materials:
-            mesh.materials.append(None)
-        for index, (image, constant) in enumerate(sources[:len(mesh.materials)]):
-            mesh.materials[index] = _emission_material(created, source_uv, image, constant, channel, target)
         view_layer = scene.view_layers[0]
-        with bpy.context.temp_override(scene=scene, view_layer=view_layer, active_object=proxy, object=proxy,
-                                       selected_objects=[proxy], selected_editable_objects=[proxy]):
+        proxies = []
+        for obj in objects:
+            sources = _slot_sources(obj)
+            mesh = obj.data.copy()
+            created.append(mesh)
+            proxy = bpy.data.objects.new("perceptual_uv_bake", mesh)
+            created.append(proxy)
+            proxies.append(proxy)
+            proxy.matrix_world = obj.matrix_world
+            scene.collection.objects.link(proxy)
             proxy.select_set(True, view_layer=view_layer)
-            view_layer.objects.active = proxy
+            if not mesh.materials:
+                mesh.materials.append(None)
+            for index, (image, constant) in enumerate(sources[:len(mesh.materials)]):
+                mesh.materials[index] = _emission_material(created, source_uv, image, constant, channel, target)
+        view_layer.objects.active = proxies[0]
+        with bpy.context.temp_override(scene=scene, view_layer=view_layer, active_object=proxies[0],
+                                       object=proxies[0], selected_objects=proxies,
+                                       selected_editable_objects=proxies):
             bpy.ops.object.bake(type="EMIT", uv_layer=target_uv, margin=margin, margin_type="EXTEND",
                                 use_clear=True, target="IMAGE_TEXTURES")
         pixels = np.empty(resolution * resolution * 4, dtype=np.float32)
@@ -114,14 +145,14 @@ def _bake_channel(obj, *, source_uv, target_uv, resolution, margin, channel, sou
     return pixels.reshape(resolution, resolution, 4)
 
 
-def bake_base_color(obj, *, source_uv, target_uv, resolution, margin, image_name):
-    """Bake ``obj``'s base-colour texture(s) through ``source_uv`` into a new image laid out by ``target_uv``.
+def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_name):
+    """Bake the base-colour texture(s) of ``objects`` through ``source_uv`` into one new image on ``target_uv``.
 
     Parameters
     ----------
-    obj : bpy.types.Object
-        A mesh object whose material slots feed their Base Color from image textures (slots without an
-        image bake their constant Base Color).
+    objects : sequence of bpy.types.Object
+        Mesh objects whose material slots feed their Base Color from image textures (slots without an image
+        bake their constant Base Color); several objects share the new image (an atlas).
     source_uv, target_uv : str
         Names of the UV maps the original texture is read through and the new one is written on.
     resolution : int
@@ -137,17 +168,18 @@ def bake_base_color(obj, *, source_uv, target_uv, resolution, margin, image_name
         A new 8-bit sRGB image whose stored values are the bilinear samples of the source's stored values;
         alpha is baked too when a source image uses it.
     """
-    if obj.type != "MESH":
-        raise ValueError(f"'{obj.name}' is not a mesh")
-    for name in (source_uv, target_uv):
-        if name not in obj.data.uv_layers:
-            raise ValueError(f"'{obj.name}' has no UV map '{name}'")
-    sources = _slot_sources(obj)
-    common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=margin, sources=sources)
-    pixels = _bake_channel(obj, channel="COLOR", **common)
-    use_alpha = any(_has_alpha(image) for image, _ in sources)
+    objects = list(objects)
+    for obj in objects:
+        if obj.type != "MESH":
+            raise ValueError(f"'{obj.name}' is not a mesh")
+        for name in (source_uv, target_uv):
+            if name not in obj.data.uv_layers:
+                raise ValueError(f"'{obj.name}' has no UV map '{name}'")
+    common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=margin)
+    pixels = _bake_channel(objects, channel="COLOR", **common)
+    use_alpha = any(_has_alpha(image) for obj in objects for image, _ in _slot_sources(obj))
     if use_alpha:
-        pixels[..., 3] = _bake_channel(obj, channel="ALPHA", **common)[..., 0]
+        pixels[..., 3] = _bake_channel(objects, channel="ALPHA", **common)[..., 0]
     else:
         pixels[..., 3] = 1.0
     image = bpy.data.images.new(image_name, resolution, resolution, alpha=use_alpha)

@@ -25,7 +25,7 @@ def base_color_image_node(material):
     Follows links upstream from the Principled BSDF's "Base Color" (or, failing that, from the active
     Material Output's surface), through mix and colour nodes, to the first Image Texture node with an image.
     """
-    if material is None or not material.use_nodes or material.node_tree is None:
+    if material is None or material.node_tree is None:
         return None
     nodes = material.node_tree.nodes
     sockets = [node.inputs["Base Color"] for node in nodes if node.type == "BSDF_PRINCIPLED"]
