@@ -11,8 +11,36 @@ import pathlib
 import sys
 
 PROG = "perceptual_uv"
+
+
+def blender_argv(argv):
+    """The arguments Blender passes through to a ``--python`` script: everything after ``--``."""
+    return argv[argv.index("--") + 1:] if "--" in argv else []
+
+
+def _import_package_from_file():
+    """Import this file's folder as the package ``perceptual_uv`` (a --python script has no package)."""
+    import importlib.util
+
+    folder = pathlib.Path(__file__).resolve().parent
+    spec = importlib.util.spec_from_file_location(PROG, folder / "__init__.py",
+                                                  submodule_search_locations=[str(folder)])
+    package = importlib.util.module_from_spec(spec)
+    sys.modules[PROG] = package
+    spec.loader.exec_module(package)
+    return importlib.import_module(f"{PROG}.cli")
+
+
+if __name__ == "__main__" and not __package__:  # blender -b FILE --python cli.py -- ARGS
+    sys.exit(_import_package_from_file().main(blender_argv(sys.argv)))
+
+from .core.settings import OptimizeSettings  # noqa: E402  (after the script bootstrap above)
+
 MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj")
 OUTPUT_SUFFIXES = (".blend", ".glb")
+
+
+DEFAULTS = OptimizeSettings()
 
 
 class UsageError(ValueError):
@@ -59,14 +87,18 @@ def build_parser():
     optimize.add_argument("input", metavar="IN", type=_existing_model, help=".blend, .glb/.gltf or .obj")
     optimize.add_argument("--object", help="mesh object to optimize (default: the textured mesh objects)")
     optimize.add_argument("--uv", help="input UV map (default: the active one)")
-    optimize.add_argument("--epsilon", type=float, default=0.01, help="perceptual loss bound (default 0.01)")
+    optimize.add_argument("--epsilon", type=float, default=DEFAULTS.epsilon,
+                          help=f"perceptual loss bound (default {DEFAULTS.epsilon})")
     size = optimize.add_mutually_exclusive_group()
-    size.add_argument("--cost", type=float, default=None, help="target relative cost (default 0.3)")
+    size.add_argument("--cost", type=float, default=DEFAULTS.target_cost,
+                      help=f"target relative cost (default {DEFAULTS.target_cost})")
     size.add_argument("--resolution", type=int, default=None, help="explicit texture size in pixels")
-    optimize.add_argument("--iterations", type=int, default=100, help="loss evaluations per triangle")
-    optimize.add_argument("--screen-pixels", type=int, default=64, help="per-triangle view size (default 64)")
-    optimize.add_argument("--workers", type=int, default=0, help="worker processes (0: one per core)")
-    optimize.add_argument("--seed", type=int, default=0)
+    optimize.add_argument("--iterations", type=int, default=DEFAULTS.iterations, help="loss evaluations per triangle")
+    optimize.add_argument("--screen-pixels", type=int, default=DEFAULTS.screen_pixels,
+                          help=f"per-triangle view size (default {DEFAULTS.screen_pixels})")
+    optimize.add_argument("--margin", type=int, default=DEFAULTS.margin, help="island margin in pixels")
+    optimize.add_argument("--workers", type=int, default=DEFAULTS.workers, help="worker processes (0: one per core)")
+    optimize.add_argument("--seed", type=int, default=DEFAULTS.seed)
     optimize.add_argument("--out", required=True, type=_output_model, help="OUT.blend or OUT.glb")
     optimize.add_argument("--report", type=pathlib.Path, help="write the JSON report here")
 
@@ -82,18 +114,12 @@ def build_parser():
 
 def _validate(args):
     if args.command == "optimize":
-        if not 0 < args.epsilon < 1:
-            raise UsageError(f"--epsilon {args.epsilon}: must be in (0, 1)")
-        if args.cost is not None and not 0 < args.cost <= 4:
-            raise UsageError(f"--cost {args.cost}: must be in (0, 4]")
-        if args.resolution is not None and not 8 <= args.resolution <= 16384:
-            raise UsageError(f"--resolution {args.resolution}: must be in [8, 16384]")
-        if args.iterations < 10:
-            raise UsageError(f"--iterations {args.iterations}: at least 10 evaluations per triangle")
-        if args.workers < 0:
-            raise UsageError(f"--workers {args.workers}: must be >= 0")
-        if args.cost is None and args.resolution is None:
-            args.cost = 0.3
+        try:
+            args.settings = OptimizeSettings(
+                epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
+                screen_pixels=args.screen_pixels, margin=args.margin, workers=args.workers, seed=args.seed)
+        except ValueError as error:
+            raise UsageError(str(error)) from None
     return args
 
 
@@ -129,25 +155,5 @@ def main(argv=None):
     return 0
 
 
-def blender_argv(argv):
-    """The arguments Blender passes through to a ``--python`` script: everything after ``--``."""
-    return argv[argv.index("--") + 1:] if "--" in argv else []
-
-
-def _import_package_from_file():
-    """Import this file's folder as the package ``perceptual_uv`` (a --python script has no package)."""
-    import importlib.util
-
-    folder = pathlib.Path(__file__).resolve().parent
-    spec = importlib.util.spec_from_file_location(PROG, folder / "__init__.py",
-                                                  submodule_search_locations=[str(folder)])
-    package = importlib.util.module_from_spec(spec)
-    sys.modules[PROG] = package
-    spec.loader.exec_module(package)
-    return importlib.import_module(f"{PROG}.cli")
-
-
 if __name__ == "__main__":
-    if __package__:
-        sys.exit(main())
-    sys.exit(_import_package_from_file().main(blender_argv(sys.argv)))
+    sys.exit(main())

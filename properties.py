@@ -3,13 +3,17 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
+from .core.settings import OptimizeSettings
+
+DEFAULTS = OptimizeSettings()
+
 
 def settings_annotations():
     """Fresh property definitions; the operator and the PropertyGroup each get their own copy."""
     return {
         "epsilon": FloatProperty(
             name="Loss Bound", description="Perceptual loss bound epsilon per triangle (GMSD, paper Eq. 7)",
-            default=0.01, min=1e-4, max=0.5, precision=4, step=0.1),
+            default=DEFAULTS.epsilon, min=1e-4, max=0.5, precision=4, step=0.1),
         "resolution_mode": EnumProperty(
             name="Resolution", description="How the new texture's resolution is chosen",
             items=(("COST", "Relative Cost", "Resolution from a target relative cost (paper Eq. 20-21)"),
@@ -17,32 +21,41 @@ def settings_annotations():
             default="COST"),
         "target_cost": FloatProperty(
             name="Relative Cost", description="Texel count of the result relative to the input (paper Eq. 21)",
-            default=0.3, min=0.01, max=4.0, precision=3),
+            default=DEFAULTS.target_cost, min=0.01, max=4.0, precision=3),
         "resolution": IntProperty(
             name="Texture Size", description="Width and height of the new image in pixels",
             default=1024, min=8, max=16384),
         "iterations": IntProperty(
             name="Evaluations", description="Loss evaluations per triangle (Bayesian optimization budget)",
-            default=100, min=10, max=1000),
+            default=DEFAULTS.iterations, min=10, max=1000),
         "screen_pixels": IntProperty(
             name="Screen Pixels", description="Side of the per-triangle orthographic view (paper App. A)",
-            default=64, min=16, max=256),
+            default=DEFAULTS.screen_pixels, min=16, max=256),
         "margin": IntProperty(
             name="Margin", description="Packing and bake margin in pixels of the new image",
-            default=4, min=0, max=64),
+            default=DEFAULTS.margin, min=0, max=64),
         "workers": IntProperty(
             name="Workers", description="Worker processes for the triangle-wise stage (0: one per core)",
-            default=0, min=0, max=256),
-        "seed": IntProperty(name="Seed", description="Fixes every random choice", default=0, min=0),
+            default=DEFAULTS.workers, min=0, max=256),
+        "seed": IntProperty(name="Seed", description="Fixes every random choice", default=DEFAULTS.seed, min=0),
         "uv_map_name": StringProperty(
-            name="UV Map", description="Name of the new UV map", default="PerceptualUV"),
+            name="UV Map", description="Name of the new UV map", default=DEFAULTS.uv_map_name),
         "image_name": StringProperty(
-            name="Image", description="Name of the new image (empty: derived from the object)", default=""),
+            name="Image", description="Name of the new image (empty: derived from the original image)",
+            default=DEFAULTS.image_name),
         "use_material_copy": BoolProperty(
             name="Use in Material Copy",
             description="Assign a copy of the material that samples the new image through the new UV map",
-            default=True),
+            default=DEFAULTS.use_material_copy),
     }
+
+
+def settings_from(props):
+    """The OptimizeSettings that a PropertyGroup or operator's properties describe (ValueError if invalid)."""
+    values = {name: getattr(props, name) for name in OptimizeSettings.__dataclass_fields__ if hasattr(props, name)}
+    if props.resolution_mode == "COST":
+        values["resolution"] = None
+    return OptimizeSettings(**values)
 
 
 class PerceptualUVSettings(bpy.types.PropertyGroup):

@@ -50,8 +50,9 @@ def test_blender_form_help_and_missing_arguments():
 
 
 def test_optimize_defaults_follow_the_design_contract():
-    args = parse_args(["optimize", str(SPOT), "--out", "x.blend"])
-    assert (args.epsilon, args.cost, args.resolution, args.iterations, args.seed) == (0.01, 0.3, None, 100, 0)
+    settings = parse_args(["optimize", str(SPOT), "--out", "x.blend"]).settings
+    assert (settings.epsilon, settings.target_cost, settings.resolution) == (0.01, 0.3, None)
+    assert (settings.iterations, settings.screen_pixels, settings.seed) == (100, 64, 0)
 
 
 def test_cost_and_resolution_are_exclusive():
@@ -61,9 +62,9 @@ def test_cost_and_resolution_are_exclusive():
 @pytest.mark.parametrize("args, fragment", [
     (["optimize", "model.fbx", "--out", "x.blend"], "unsupported input type"),
     (["optimize", str(SPOT), "--out", "x.png"], "unsupported output type"),
-    (["optimize", str(SPOT), "--out", "x.blend", "--epsilon", "0"], "--epsilon 0.0: must be in (0, 1)"),
-    (["optimize", str(SPOT), "--out", "x.blend", "--resolution", "4"], "--resolution 4"),
-    (["optimize", str(SPOT), "--out", "x.blend", "--iterations", "3"], "--iterations 3"),
+    (["optimize", str(SPOT), "--out", "x.blend", "--epsilon", "0"], "epsilon 0.0: must be in (0, 1)"),
+    (["optimize", str(SPOT), "--out", "x.blend", "--resolution", "4"], "resolution 4"),
+    (["optimize", str(SPOT), "--out", "x.blend", "--iterations", "3"], "iterations 3"),
     (["evaluate", str(SPOT), "--uv", "UVMap", "--costs", "0.1,abc"], "comma-separated"),
     (["evaluate", str(SPOT), "--uv", "UVMap", "--costs", "0,0.5"], "(0, 4]"),
 ])

@@ -1,0 +1,66 @@
+"""The options of one optimization run, shared by the operator, the sidebar, the CLI and the pipeline."""
+import dataclasses
+
+__all__ = ["OptimizeSettings"]
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizeSettings:
+    """Options of "Optimize UVs"; the defaults are the paper's settings where it has one.
+
+    Attributes
+    ----------
+    epsilon : float
+        Perceptual loss bound per triangle (GMSD), Eq. 7 and 12-14; the paper uses 0.01.
+    target_cost : float or None
+        Target relative cost c_r of the result (Eq. 21); ignored when ``resolution`` is set.
+    resolution : int or None
+        Explicit side of the new square image instead of a target cost.
+    iterations : int
+        Loss evaluations per triangle in the Bayesian optimization (the paper: 100, Fig. 15).
+    screen_pixels : int
+        Side of the per-triangle orthographic view (App. A: 64).
+    margin : int
+        Gap between packed islands and bake margin, in pixels of the new image.
+    workers : int
+        Worker processes for the triangle-wise stage; 0 means one per core.
+    seed : int
+        Fixes every random choice: two runs with the same seed give the same UVs.
+    uv_map_name : str
+        Name of the new UV map.
+    image_name : str
+        Name of the new image; empty means "<original image>_perceptual".
+    use_material_copy : bool
+        Assign copies of the materials that sample the new image through the new UV map.
+    """
+
+    epsilon: float = 0.01
+    target_cost: float = 0.3
+    resolution: int | None = None
+    iterations: int = 100
+    screen_pixels: int = 64
+    margin: int = 4
+    workers: int = 0
+    seed: int = 0
+    uv_map_name: str = "PerceptualUV"
+    image_name: str = ""
+    use_material_copy: bool = True
+
+    def __post_init__(self):
+        checks = [
+            (0 < self.epsilon < 1, f"epsilon {self.epsilon}: must be in (0, 1)"),
+            (self.resolution is not None or 0 < self.target_cost <= 4,
+             f"target cost {self.target_cost}: must be in (0, 4]"),
+            (self.resolution is None or 8 <= self.resolution <= 16384,
+             f"resolution {self.resolution}: must be in [8, 16384]"),
+            (self.iterations >= 10, f"iterations {self.iterations}: at least 10 evaluations per triangle"),
+            (16 <= self.screen_pixels <= 256 and self.screen_pixels % 2 == 0,
+             f"screen pixels {self.screen_pixels}: must be even and in [16, 256]"),
+            (0 <= self.margin <= 64, f"margin {self.margin}: must be in [0, 64] pixels"),
+            (self.workers >= 0, f"workers {self.workers}: must be >= 0"),
+            (self.seed >= 0, f"seed {self.seed}: must be >= 0"),
+            (bool(self.uv_map_name.strip()), "the new UV map needs a name"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)

@@ -1,0 +1,23 @@
+import pytest
+
+from perceptual_uv.core.settings import OptimizeSettings
+
+
+def test_defaults_are_the_papers():
+    settings = OptimizeSettings()
+    assert (settings.epsilon, settings.iterations, settings.screen_pixels) == (0.01, 100, 64)
+    assert settings.uv_map_name == "PerceptualUV"
+
+
+@pytest.mark.parametrize("field, value, fragment", [
+    ("epsilon", 0.0, "epsilon"), ("target_cost", 0.0, "target cost"), ("resolution", 4, "resolution"),
+    ("iterations", 5, "iterations"), ("screen_pixels", 63, "screen pixels"), ("workers", -1, "workers"),
+    ("uv_map_name", " ", "name"),
+])
+def test_bad_values_are_refused_with_the_field_named(field, value, fragment):
+    with pytest.raises(ValueError, match=fragment):
+        OptimizeSettings(**{field: value})
+
+
+def test_explicit_resolution_ignores_the_cost():
+    assert OptimizeSettings(resolution=512, target_cost=0.0).resolution == 512
