@@ -1,0 +1,312 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Read meshes, UV maps and images from Blender into arrays, and write new UV maps back (bpy <-> numpy).
+
+Every transfer goes through ``foreach_get``/``foreach_set``; there is no Python loop over vertices, loops or
+triangles. Reading never changes Blender data; writing only ever adds a new UV map.
+"""
+import pathlib
+
+import bpy
+import numpy as np
+
+from ..core.mesh import MeshArrays, concatenate_meshes
+from .material import base_color_image_node
+
+__all__ = ["SUPPORTED_SUFFIXES", "import_model", "read_mesh", "read_image", "load_textured_mesh",
+           "write_uv_layer", "image_triangle_mask"]
+
+SUPPORTED_SUFFIXES = (".blend", ".obj", ".gltf", ".glb")
+
+
+def import_model(path):
+    """Load a model file into an empty scene (for scripts, the CLI and tests; it discards the open file).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.blend`` file (opened as the current file), or ``.obj``, ``.gltf``/``.glb`` (imported with
+        Blender's own importers, which convert glTF's Y-up axes and flipped V to Blender's conventions).
+
+    Returns
+    -------
+    list of bpy.types.Object
+        The objects of the scene after loading, in name order.
+
+    Raises
+    ------
+    ValueError
+        If the file does not exist, has an unsupported suffix or the importer fails.
+    """
+    path = pathlib.Path(path).expanduser().resolve()
+    suffix = path.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
+        raise ValueError(f"unsupported model type '{path.suffix}' for {path}; use one of "
+                         f"{', '.join(SUPPORTED_SUFFIXES)}")
+    if not path.is_file():
+        raise ValueError(f"model file not found: {path}")
+    try:
+        if suffix == ".blend":
+            bpy.ops.wm.open_mainfile(filepath=str(path))
+        else:
+            # read_homefile keeps the preferences (and so the enabled extensions), unlike read_factory_settings
+            bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+            if suffix == ".obj":
+                bpy.ops.wm.obj_import(filepath=str(path))
+            else:
+                bpy.ops.import_scene.gltf(filepath=str(path))
+    except RuntimeError as error:
+        raise ValueError(f"could not load {path}: {str(error).strip()}") from error
+    return sorted(bpy.context.scene.objects, key=lambda obj: obj.name)
+
+
+def _mesh_of(obj):
+    if obj is None or obj.type != "MESH":
+        raise ValueError(f"'{getattr(obj, 'name', obj)}' is not a mesh object")
+    return obj.data
+
+
+def _resolve_uv_name(obj, uv_name):
+    mesh = _mesh_of(obj)
+    if uv_name is None:
+        if mesh.uv_layers.active is None:
+            raise ValueError(f"'{obj.name}' has no UV map")
+        return mesh.uv_layers.active.name
+    if uv_name not in mesh.uv_layers:
+        raise ValueError(f"'{obj.name}' has no UV map '{uv_name}' (it has: "
+                         f"{', '.join(layer.name for layer in mesh.uv_layers) or 'none'})")
+    return uv_name
+
+
+def _get(collection, attribute, count, dtype, width=1):
+    buffer = np.empty(count * width, dtype=dtype)
+    collection.foreach_get(attribute, buffer)
+    return buffer if width == 1 else buffer.reshape(count, width)
+
+
+def read_mesh(obj, *, uv_name=None):
+    """Triangulated world-space geometry and per-corner UVs of a mesh object.
+
+    Parameters
+    ----------
+    obj : bpy.types.Object
+        A mesh object. Its original (unmodified) mesh is read, so every triangle corner maps to a loop of
+        the mesh a new UV map is written to; modifiers such as an armature pose are ignored.
+    uv_name : str, optional
+        UV map to read; the active one by default.
+
+    Returns
+    -------
+    MeshArrays
+        ``V`` (n, 3) float64 with ``obj.matrix_world`` applied, ``F`` (m, 3) int64 from Blender's own
+        triangulation (``mesh.loop_triangles``), ``uv`` (m, 3, 2) float64, ``tri_loops`` (m, 3) int64,
+        ``tri_polygons`` (m,) int64, ``material_index`` (m,) int64, ``object_index`` all 0.
+        With a mirroring ``matrix_world`` (negative determinant) the world-space winding is reversed.
+
+    Raises
+    ------
+    ValueError
+        If ``obj`` is not a mesh, has no faces or lacks the UV map.
+    """
+    mesh = _mesh_of(obj)
+    uv_name = _resolve_uv_name(obj, uv_name)
+    mesh.calc_loop_triangles()
+    n_vertices, n_loops, n_triangles = len(mesh.vertices), len(mesh.loops), len(mesh.loop_triangles)
+    if n_triangles == 0:
+        raise ValueError(f"'{obj.name}' has no faces")
+    local = _get(mesh.vertices, "co", n_vertices, np.float32, 3).astype(np.float64)
+    matrix = np.array(obj.matrix_world, dtype=np.float64)
+    V = local @ matrix[:3, :3].T + matrix[:3, 3]
+    triangles = mesh.loop_triangles
+    F = _get(triangles, "vertices", n_triangles, np.int32, 3).astype(np.int64)
+    tri_loops = _get(triangles, "loops", n_triangles, np.int32, 3).astype(np.int64)
+    tri_polygons = _get(triangles, "polygon_index", n_triangles, np.int32).astype(np.int64)
+    material_index = _get(triangles, "material_index", n_triangles, np.int32).astype(np.int64)
+    loop_uv = _get(mesh.uv_layers[uv_name].uv, "vector", n_loops, np.float32, 2).astype(np.float64)
+    return MeshArrays(V=V, F=F, uv=loop_uv[tri_loops], tri_loops=tri_loops, tri_polygons=tri_polygons,
+                      material_index=material_index, object_index=np.zeros(n_triangles, dtype=np.int64),
+                      object_names=(obj.name,), uv_name=uv_name)
+
+
+def read_image(image):
+    """Pixels of an image as stored, bottom row first.
+
+    Parameters
+    ----------
+    image : bpy.types.Image
+
+    Returns
+    -------
+    (h, w, c) float32 ndarray
+        ``c = image.channels``; row 0 is the bottom of the image (v = 0). 8-bit images give their stored
+        byte values / 255 with no colour-space conversion.
+
+    Raises
+    ------
+    ValueError
+        If the image has no pixels (e.g. its file is missing).
+    """
+    if image is None:
+        raise ValueError("no image")
+    width, height = image.size
+    channels = image.channels
+    if width == 0 or height == 0 or len(image.pixels) == 0:
+        raise ValueError(f"image '{image.name}' has no pixels (file missing: '{image.filepath}'?)")
+    pixels = np.empty(width * height * channels, dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    return pixels.reshape(height, width, channels)
+
+
+def image_triangle_mask(obj, mesh_arrays, image):
+    """Which triangles of ``mesh_arrays`` (read from ``obj``) have ``image`` as their base colour.
+
+    Parameters
+    ----------
+    obj : bpy.types.Object
+    mesh_arrays : MeshArrays
+        As returned by :func:`read_mesh` for ``obj``.
+    image : bpy.types.Image
+
+    Returns
+    -------
+    (m,) bool ndarray
+    """
+    slot_images = [base_color_image_node(slot.material) for slot in obj.material_slots]
+    slot_uses = np.array([node is not None and node.image == image for node in slot_images] or [False])
+    # Blender clamps material indices beyond the last slot to the last slot
+    return slot_uses[np.clip(mesh_arrays.material_index, 0, len(slot_uses) - 1)]
+
+
+def _base_color_images(obj):
+    return [node.image for node in map(base_color_image_node, (s.material for s in obj.material_slots)) if node]
+
+
+def load_textured_mesh(path, *, object_name=None, uv_name=None):
+    """Import a model and return the triangles textured by its base-colour image, with that image.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Model file, see :func:`import_model`.
+    object_name : str, optional
+        Read only this object. By default every mesh object whose material base colour is the model's
+        main image (the one that textures the most triangles) is read and the arrays are joined in world
+        space, e.g. the ten objects of a tea set sharing one atlas.
+    uv_name : str, optional
+        UV map to read from each object; the active one by default.
+
+    Returns
+    -------
+    mesh : MeshArrays
+        Only the triangles whose material base colour is the chosen image; ``object_names`` lists the
+        objects in ``object_index`` order.
+    texture : (h, w, c) float32 ndarray
+        The image's stored pixels, row 0 at the bottom.
+    image_name : str
+        Name of the image data block.
+
+    Raises
+    ------
+    ValueError
+        If the file cannot be loaded, the named object is missing or not a mesh, or no mesh object has an
+        image feeding its base colour.
+    """
+    objects = import_model(path)
+    if object_name is not None:
+        matches = [obj for obj in objects if obj.name == object_name]
+        if not matches:
+            raise ValueError(f"no object '{object_name}' in {path} (objects: "
+                             f"{', '.join(obj.name for obj in objects) or 'none'})")
+        _mesh_of(matches[0])
+        objects = matches
+    candidates = [obj for obj in objects if obj.type == "MESH" and _base_color_images(obj)]
+    if not candidates:
+        raise ValueError(f"no mesh object in {path} has an image texture feeding its material's base colour")
+    per_object = [(obj, read_mesh(obj, uv_name=uv_name)) for obj in candidates]
+    triangles_per_image = {}
+    for obj, arrays in per_object:
+        for image in set(_base_color_images(obj)):
+            count = int(image_triangle_mask(obj, arrays, image).sum())
+            triangles_per_image[image] = triangles_per_image.get(image, 0) + count
+    image = max(triangles_per_image, key=lambda block: (triangles_per_image[block], block.name))
+    selected = []
+    for obj, arrays in per_object:
+        keep = image_triangle_mask(obj, arrays, image)
+        if keep.any():
+            selected.append(_subset_triangles(arrays, keep))
+    return concatenate_meshes(selected), read_image(image), image.name
+
+
+def _subset_triangles(arrays, keep):
+    if keep.all():
+        return arrays
+    return MeshArrays(V=arrays.V, F=arrays.F[keep], uv=arrays.uv[keep], tri_loops=arrays.tri_loops[keep],
+                      tri_polygons=arrays.tri_polygons[keep], material_index=arrays.material_index[keep],
+                      object_index=arrays.object_index[keep], object_names=arrays.object_names,
+                      uv_name=arrays.uv_name)
+
+
+def write_uv_layer(obj, name, uv_per_corner, tri_loops):
+    """Add a new UV map holding per-corner UVs; existing UV maps stay untouched.
+
+    Parameters
+    ----------
+    obj : bpy.types.Object
+        The mesh object the corners were read from.
+    name : str
+        Name of the new UV map; it must not exist yet.
+    uv_per_corner : (m, 3, 2) array_like
+        UV of each triangle corner.
+    tri_loops : (m, 3) array_like of int
+        Loop index of each corner (``MeshArrays.tri_loops`` of this object). A loop shared by several
+        triangles (inside an n-gon) gets the mean of their values; loops not listed keep the values of the
+        active UV map, which Blender copies into a new layer.
+
+    Returns
+    -------
+    bpy.types.MeshUVLoopLayer
+        The new layer. The active and render-active UV maps are unchanged.
+
+    Raises
+    ------
+    ValueError
+        On a name clash, shape mismatch, loop indices out of range, non-finite UVs, or when the mesh already
+        has the maximum number of UV maps.
+    """
+    mesh = _mesh_of(obj)
+    if not name:
+        raise ValueError("the new UV map needs a name")
+    if name in mesh.uv_layers:
+        raise ValueError(f"'{obj.name}' already has a UV map '{name}'; choose another name")
+    uv_per_corner = np.asarray(uv_per_corner, dtype=np.float64)
+    tri_loops = np.asarray(tri_loops)
+    if uv_per_corner.ndim != 3 or uv_per_corner.shape[1:] != (3, 2):
+        raise ValueError(f"uv_per_corner must have shape (m, 3, 2), got {uv_per_corner.shape}")
+    if tri_loops.shape != uv_per_corner.shape[:2]:
+        raise ValueError(f"tri_loops must have shape {uv_per_corner.shape[:2]}, got {tri_loops.shape}")
+    if not np.issubdtype(tri_loops.dtype, np.integer):
+        raise ValueError(f"tri_loops must hold integers, got {tri_loops.dtype}")
+    if not np.isfinite(uv_per_corner).all():
+        raise ValueError("uv_per_corner contains NaN or infinite values")
+    n_loops = len(mesh.loops)
+    if tri_loops.size and (tri_loops.min() < 0 or tri_loops.max() >= n_loops):
+        raise ValueError(f"tri_loops indexes loops outside [0, {n_loops}) of '{obj.name}'")
+    active_name = mesh.uv_layers.active.name if mesh.uv_layers.active else None
+    render_names = [layer.name for layer in mesh.uv_layers if layer.active_render]
+    layer = mesh.uv_layers.new(name=name, do_init=True)
+    if layer is None:
+        raise ValueError(f"'{obj.name}' cannot take another UV map (Blender allows at most 8)")
+    if active_name is not None:
+        mesh.uv_layers.active = mesh.uv_layers[active_name]
+    for layer_name in render_names:
+        mesh.uv_layers[layer_name].active_render = True
+    layer = mesh.uv_layers[name]
+    loop_uv = _get(layer.uv, "vector", n_loops, np.float32, 2).astype(np.float64)
+    loops = tri_loops.ravel()
+    counts = np.bincount(loops, minlength=n_loops)
+    written = counts > 0
+    for axis in range(2):
+        sums = np.bincount(loops, weights=uv_per_corner[..., axis].ravel(), minlength=n_loops)
+        loop_uv[written, axis] = sums[written] / counts[written]
+    layer.uv.foreach_set("vector", loop_uv.astype(np.float32).ravel())
+    mesh.update()
+    return layer
