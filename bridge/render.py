@@ -32,7 +32,7 @@ from mathutils import Matrix
 from .material import base_color_image_node
 from .mesh_io import read_image
 
-__all__ = ["Camera", "WorkbenchRenderer", "camera_matrix"]
+__all__ = ["Camera", "WorkbenchRenderer", "camera_matrix", "triangle_view"]
 
 _TEXTURE_VALUES = ("stored", "srgb")
 _ANTIALIASING = ("OFF", "FXAA", "5", "8", "11", "16", "32")
@@ -79,6 +79,34 @@ class Camera:
         if not 0 < self.clip_start < self.clip_end:
             raise ValueError(f"need 0 < clip_start < clip_end, got {self.clip_start}, {self.clip_end}")
         camera_matrix(self)  # degenerate directions fail here, at construction
+
+
+def triangle_view(cameras, row=0):
+    """The Blender camera equal to one App. A triangle camera of :mod:`..core.camera`.
+
+    Parameters
+    ----------
+    cameras : core.camera.TriangleCameras
+        A batch of Algorithm 1 cameras.
+    row : int
+        Which camera of the batch.
+
+    Returns
+    -------
+    Camera
+        Orthographic, centred on the square window (Algorithm 1's window need not be centred on the
+        barycentre, so the eye moves in-plane with it), 500 units along the normal, up = ``U``, right = ``R``,
+        ``ortho_scale`` = the window side, the same near and far planes. Rendered with a film of
+        ``cameras.screen_pixels`` square, pixel (i, j) of :meth:`WorkbenchRenderer.render` is pixel (i, j) of
+        ``cameras.pixel_centres(row)``.
+    """
+    from ..core.camera import CLIP_FAR, CLIP_NEAR, EYE_DISTANCE
+
+    if not cameras.valid[row]:
+        raise ValueError(f"camera {row} belongs to a degenerate triangle")
+    centre = cameras.view_centre[row]
+    return Camera(position=centre + EYE_DISTANCE * cameras.normal[row], look_at=centre, up=cameras.up[row],
+                  ortho_scale=float(cameras.size[row]), clip_start=CLIP_NEAR, clip_end=CLIP_FAR)
 
 
 def _srgb_to_linear(values):
