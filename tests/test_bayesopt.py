@@ -1,0 +1,250 @@
+import math
+
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.special
+
+from perceptual_uv.core import bayesopt
+from perceptual_uv.core.bayesopt import minimize, minimize_constrained
+
+
+def _random_problem(seed, n=12, c=7, d=4, periodic=(True, False, False, False)):
+    rng = np.random.default_rng(seed)
+    return rng.random((n, d)), rng.random((c, d)), np.exp(rng.uniform(-1.0, 1.5, d)), np.array(periodic)
+
+
+def _full_factor(X, inv_length, periodic, noise):
+    C = bayesopt._matern52_numpy(X, X, inv_length, periodic) + noise * np.eye(len(X))
+    return np.linalg.cholesky(C)
+
+
+# --- kernels: numba against numpy references and against closed forms -------------------------------------
+
+
+def test_matern52_numba_matches_numpy_reference():
+    X, C, inv_length, periodic = _random_problem(0)
+    np.testing.assert_allclose(bayesopt._matern52_numba(X, C, inv_length, periodic),
+                               bayesopt._matern52_numpy(X, C, inv_length, periodic), rtol=1e-13)
+
+
+def test_matern52_closed_form_and_periodic_wrap():
+    # One dimension, length 1: k(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r) at r = 0.5 by hand.
+    r = 0.5
+    expected = (1 + math.sqrt(5) * r + 5 * r * r / 3) * math.exp(-math.sqrt(5) * r)
+    value = bayesopt._matern52_numba(np.array([[0.1]]), np.array([[0.6]]), np.ones(1), np.zeros(1, bool))
+    assert value[0, 0] == pytest.approx(expected, rel=1e-14)
+    # Periodic (period 1): points 0.02 and 0.98 are 0.04 apart, as close as 0.50 and 0.54.
+    periodic = np.ones(1, bool)
+    across = bayesopt._matern52_numba(np.array([[0.02]]), np.array([[0.98]]), np.ones(1), periodic)
+    inside = bayesopt._matern52_numba(np.array([[0.50]]), np.array([[0.54]]), np.ones(1), periodic)
+    assert across[0, 0] == pytest.approx(inside[0, 0], rel=1e-12)
+
+
+def test_cholesky_append_matches_full_factor_and_reference():
+    X, _, inv_length, periodic = _random_problem(1)
+    noise = 1e-4
+    full = _full_factor(X, inv_length, periodic, noise)
+    for append in (bayesopt._cholesky_append_numba, bayesopt._cholesky_append_numpy):
+        L = np.zeros_like(full)
+        for n in range(len(X)):
+            k = bayesopt._matern52_numpy(X[:n], X[n:n + 1], inv_length, periodic)[:, 0]
+            append(L, n, k, 1.0 + noise)
+        np.testing.assert_allclose(L, full, atol=1e-12)
+
+
+def test_append_rows_numba_matches_reference_and_dense_solve():
+    X, C, inv_length, periodic = _random_problem(2)
+    L = _full_factor(X, inv_length, periodic, 1e-4)
+    dense = scipy.linalg.solve_triangular(L, bayesopt._matern52_numpy(X, C, inv_length, periodic), lower=True)
+    for append in (bayesopt._append_rows_numba, bayesopt._append_rows_numpy):
+        V, squares = np.empty((len(X), len(C))), np.zeros(len(C))
+        append(V, squares, L, X, 0, 5, C, inv_length, periodic)  # in two steps, as the search does
+        append(V, squares, L, X, 5, len(X), C, inv_length, periodic)
+        np.testing.assert_allclose(V, dense, atol=1e-12)
+        np.testing.assert_allclose(squares, (dense ** 2).sum(0), atol=1e-12)
+
+
+def test_posterior_from_rows_matches_textbook_formula():
+    # mean = k*^T K^-1 y and var = 1 + eta - ... : recompute with dense inverses.
+    X, C, inv_length, periodic = _random_problem(3)
+    noise = 1e-3
+    y = np.sin(3 * X).sum(1)
+    L = _full_factor(X, inv_length, periodic, noise)
+    V, squares = np.empty((len(X), len(C))), np.zeros(len(C))
+    bayesopt._append_rows_numba(V, squares, L, X, 0, len(X), C, inv_length, periodic)
+    w = scipy.linalg.solve_triangular(L, y, lower=True)
+    K = bayesopt._matern52_numpy(X, X, inv_length, periodic) + noise * np.eye(len(X))
+    Ks = bayesopt._matern52_numpy(X, C, inv_length, periodic)
+    np.testing.assert_allclose(V.T @ w, Ks.T @ np.linalg.solve(K, y), atol=1e-10)
+    np.testing.assert_allclose(1 - squares, 1 - np.einsum("ij,ij->j", Ks, np.linalg.solve(K, Ks)), atol=1e-10)
+
+
+@pytest.mark.parametrize("kind", [bayesopt._EI, bayesopt._LCB, bayesopt._FEASIBILITY,
+                                  bayesopt._FEASIBLE_IMPROVEMENT])
+def test_acquisition_numba_matches_numpy_reference(kind):
+    X, C, inv_length, periodic = _random_problem(4, c=50)
+    L = _full_factor(X, inv_length, periodic, 1e-4)
+    V, squares = np.empty((len(X), len(C))), np.zeros(len(C))
+    bayesopt._append_rows_numba(V, squares, L, X, 0, len(X), C, inv_length, periodic)
+    w = scipy.linalg.solve_triangular(L, np.cos(4 * X).sum(1), lower=True)[:10]  # 2 pending points
+    log_improvement = np.log(np.random.default_rng(0).random(len(C)))
+    args = (V, squares, w, 0.7, kind, -0.3, 0.01, log_improvement)
+    np.testing.assert_allclose(bayesopt._acquisition_numba(*args), bayesopt._acquisition_numpy(*args),
+                               rtol=1e-9, atol=1e-12)
+
+
+def test_log_normal_cdf_deep_tail_matches_scipy():
+    for z in (3.0, 0.0, -5.0, -29.0, -31.0, -60.0):
+        assert bayesopt._log_normal_cdf_numba(z) == pytest.approx(scipy.special.log_ndtr(z), rel=1e-9)
+
+
+def test_log_expected_improvement_ratio_deep_tail():
+    # z Phi(z) + phi(z) = phi(z) (1 + z R(z)) with R = Phi/phi = sqrt(pi/2) erfcx(-z/sqrt2), independent of ours.
+    for z in (1.0, -3.0, -19.0, -25.0, -40.0):
+        ratio = 1 + z * math.sqrt(math.pi / 2) * scipy.special.erfcx(-z / math.sqrt(2))
+        expected = -0.5 * z * z - 0.5 * math.log(2 * math.pi) + math.log(ratio)
+        assert bayesopt._log_ei_ratio_numba(z) == pytest.approx(expected, rel=1e-6)
+
+
+def test_log_likelihood_numba_matches_reference_and_finite_differences():
+    X, _, _, periodic = _random_problem(5, n=15)
+    y = np.sin(5 * X[:, 0]) + X[:, 1] ** 2
+    y = (y - y.mean()) / y.std()
+    log_length, log_noise = np.log([0.3, 0.5, 1.2, 0.8]), math.log(1e-3)
+    value, gradient = bayesopt._log_likelihood_numba(X, y, log_length, log_noise, periodic)
+    ref_value, ref_gradient = bayesopt._log_likelihood_numpy(X, y, log_length, log_noise, periodic)
+    assert value == pytest.approx(ref_value, rel=1e-12)
+    np.testing.assert_allclose(gradient, ref_gradient, rtol=1e-9)
+    theta = np.append(log_length, log_noise)
+    h = 1e-6
+    for k in range(5):
+        up, down = theta.copy(), theta.copy()
+        up[k] += h
+        down[k] -= h
+        numeric = (bayesopt._log_likelihood_numpy(X, y, up[:4], up[4], periodic)[0]
+                   - bayesopt._log_likelihood_numpy(X, y, down[:4], down[4], periodic)[0]) / (2 * h)
+        assert gradient[k] == pytest.approx(numeric, rel=1e-5, abs=1e-7)
+
+
+def test_gaussian_process_incremental_factor_equals_refactor_after_fit():
+    X, _, _, periodic = _random_problem(6, n=20)
+    gp = bayesopt._GaussianProcess(4, 30, periodic)
+    for x in X[:12]:
+        gp.add(x)
+    gp.set_targets(np.sin(6 * X[:12, 0]))
+    gp.fit()
+    for x in X[12:]:
+        gp.add(x)
+    incremental = gp.L[:gp.n, :gp.n].copy()
+    gp.refactor()
+    np.testing.assert_allclose(incremental, gp.L[:gp.n, :gp.n], atol=1e-10)
+
+
+# --- optimization on functions with known minima ------------------------------------------------------------
+
+
+def _branin(P):
+    x, y = P[:, 0], P[:, 1]
+    return (y - 5.1 / (4 * np.pi ** 2) * x ** 2 + 5 / np.pi * x - 6) ** 2 + 10 * (1 - 1 / (8 * np.pi)) * np.cos(x) + 10
+
+
+def test_minimize_branin_reaches_global_minimum():
+    # Global minimum 0.397887 at (-pi, 12.275), (pi, 2.275), (9.42478, 2.475).
+    result = minimize(_branin, [[-5, 10], [0, 15]], evaluations=60, seed=0)
+    assert result.fun < 0.397887 + 0.02
+    assert result.evaluations == 60 and result.X.shape == (60, 2)
+    assert _branin(result.x[None])[0] == pytest.approx(result.fun)
+
+
+@pytest.mark.parametrize("acquisition", ["ei", "lcb"])
+def test_minimize_4d_quadratic_finds_centre(acquisition):
+    centre, weights = np.array([0.3, 0.7, 0.2, 0.55]), np.array([1.0, 3.0, 0.5, 2.0])
+    result = minimize(lambda P: ((P - centre) ** 2 * weights).sum(1), [[0, 1]] * 4, evaluations=60,
+                      acquisition=acquisition, seed=1)
+    assert result.fun < 2e-3
+    np.testing.assert_allclose(result.x, centre, atol=0.06)
+
+
+def test_minimize_periodic_dimension_wraps_around():
+    # Minimum at x0 = 0.01 (period 1) seen from both sides of the box edge.
+    def f(P):
+        return 1 - np.cos(2 * np.pi * (P[:, 0] - 0.01)) + (P[:, 1] - 0.5) ** 2
+
+    result = minimize(f, [[0, 1], [0, 1]], evaluations=40, periodic=[True, False], seed=2)
+    assert result.fun < 5e-3
+    assert min(abs(result.x[0] - 0.01), abs(result.x[0] - 1.01)) < 0.03
+
+
+def test_minimize_evaluates_x0_first_and_is_deterministic():
+    quadratic = lambda P: ((P - 0.4) ** 2).sum(1)  # noqa: E731
+    a = minimize(quadratic, [[0, 1]] * 3, evaluations=25, x0=[[0.9, 0.1, 0.5]], seed=7)
+    b = minimize(quadratic, [[0, 1]] * 3, evaluations=25, x0=[[0.9, 0.1, 0.5]], seed=7)
+    c = minimize(quadratic, [[0, 1]] * 3, evaluations=25, x0=[[0.9, 0.1, 0.5]], seed=8)
+    np.testing.assert_array_equal(a.X[0], [0.9, 0.1, 0.5])
+    np.testing.assert_array_equal(a.X, b.X)
+    assert not np.array_equal(a.X, c.X)
+
+
+def test_minimize_calls_objective_in_batches():
+    sizes = []
+
+    def f(P):
+        sizes.append(len(P))
+        return (P ** 2).sum(1)
+
+    minimize(f, [[-1, 1]] * 2, evaluations=30, initial_points=10, batch_size=5, seed=0)
+    assert sizes == [10, 5, 5, 5, 5]
+
+
+def test_minimize_constrained_by_hand():
+    # min x*y s.t. (1-x)^2 + (1-y)^2 <= 1/2 over [0.1,1]^2: on the circle x*y = 1 - r s + r^2 (s^2-1)/2 with
+    # s = cos t + sin t, r = sqrt(1/2), minimal at s = sqrt2: x = y = 1/2, x*y = 1/4.
+    def cost(P):
+        return P[:, 0] * P[:, 1]
+
+    def constraint(P):
+        return (1 - P[:, 0]) ** 2 + (1 - P[:, 1]) ** 2
+
+    result = minimize_constrained(cost, constraint, [[0.1, 1], [0.1, 1]], threshold=0.5, x0=[[1, 1]],
+                                  evaluations=50, seed=0)
+    assert result.feasible
+    assert 0.25 - 1e-9 <= result.fun < 0.25 + 0.01
+    np.testing.assert_allclose(result.x, [0.5, 0.5], atol=0.1)
+    assert constraint(result.x[None])[0] <= 0.5
+
+
+def test_minimize_constrained_stops_at_known_lower_bound():
+    # The cost's infimum over the box (corner 0.1 * 0.1) is feasible: the run stops after the first batch.
+    result = minimize_constrained(lambda P: P[:, 0] * P[:, 1], lambda P: np.zeros(len(P)), [[0.1, 1], [0.1, 1]],
+                                  threshold=0.5, x0=[[1, 1], [0.1, 0.1]], cost_lower_bound=0.01, evaluations=50)
+    assert result.evaluations == 10
+    assert result.fun == pytest.approx(0.01)
+
+
+def test_minimize_constrained_reports_infeasible():
+    result = minimize_constrained(lambda P: P[:, 0], lambda P: 1 + P[:, 0] ** 2, [[0, 1]], threshold=0.5,
+                                  evaluations=15, seed=0)
+    assert not result.feasible
+    assert result.x[0] < 0.2  # least violation
+
+
+def test_validation_errors():
+    with pytest.raises(ValueError, match="low < high"):
+        minimize(_branin, [[1, 0]])
+    with pytest.raises(ValueError, match="backend"):
+        minimize(_branin, [[0, 1], [0, 1]], backend="gpyopt")
+    with pytest.raises(ValueError, match="inside the bounds"):
+        minimize(_branin, [[0, 1], [0, 1]], x0=[[2, 0]])
+    with pytest.raises(ValueError, match="non-finite"):
+        minimize(lambda P: np.full(len(P), np.inf), [[0, 1]], evaluations=5)
+    with pytest.raises(ValueError, match="periodic"):
+        minimize(_branin, [[0, 1], [0, 1]], periodic=[True])
+
+
+def test_skopt_backend_same_budget_and_start():
+    result = minimize(_branin, [[-5, 10], [0, 15]], evaluations=12, initial_points=5, x0=[[0.0, 0.0]],
+                      backend="skopt", seed=0)
+    assert result.evaluations == 12
+    np.testing.assert_array_equal(result.X[0], [0.0, 0.0])
+    assert result.fun == pytest.approx(_branin(result.X).min())
