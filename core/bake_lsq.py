@@ -1,0 +1,226 @@
+"""Re-bake of Eq. 11: the texel values whose render best matches a target screen in least squares.
+
+Given, for every covered pixel ``p``, the 4 texels ``texels[p]`` and bilinear weights ``weights[p]`` that the
+render reads (:func:`.raster.bilinear_weights`), and the target value ``target[p]`` (the reference render),
+the re-baked texels minimize ``||B x - target||^2 + ridge ||x||^2`` over the texels that some pixel reads.
+
+Why a ridge: texels can be under-determined (a texel read with weight 0, or two texels that every pixel
+reads with the same weights, i.e. only their weighted sum is seen; this happens whenever the deformed
+triangle is minified on screen). Every least-squares solution renders the same screen (``B x`` is the
+projection of the target on the range of ``B``), so E does not depend on the choice; the tiny ridge picks
+the minimum-norm solution in the limit ``ridge -> 0`` and makes the normal matrix positive definite so a
+Cholesky factorization without pivoting works. With ``ridge = 1e-9`` and normal-matrix diagonals that are
+sums of squared bilinear weights (order 1e-3 to 10 on screens of 64 px), the render moves by less than
+1e-6 of a pixel value relative to the exact projection.
+
+Solver: normal equations ``(B^T B + ridge I) x = B^T target`` in envelope (profile) storage, factorized by
+a row-oriented Cholesky. Unknowns are numbered in the order in which the pixels first read them; row
+``i`` of the envelope spans from the first unknown coupled to ``i`` (read by a common pixel) to ``i``.
+Screen pixels are scanned row by row, so couplings reach back about one screen row of newly read texels,
+and texels read by disjoint pixel groups (minified footprints) stay uncoupled: the envelope stays narrow.
+
+References
+----------
+Sun et al. 2022, Eq. 10-11.
+"""
+import numpy as np
+
+from ._jit import njit
+
+__all__ = ["DEFAULT_RIDGE", "rebake", "render_texels"]
+
+DEFAULT_RIDGE = 1e-9
+
+
+@njit
+def _first_occurrence_ids(keys):
+    """Numba: number the distinct values of ``keys`` (p, 4) in order of first appearance (row-major).
+
+    Returns ``ids`` (p, 4) and ``unique`` (t,) with ``unique[ids] == keys``.
+    """
+    flat = keys.reshape(-1)
+    order = np.argsort(flat, kind="mergesort")  # stable: equal keys keep their first position first
+    sorted_id = np.empty(flat.size, np.int64)
+    first_pos = np.empty(flat.size, np.int64)
+    groups = 0
+    for r in range(flat.size):
+        pos = order[r]
+        if r == 0 or flat[pos] != flat[order[r - 1]]:
+            first_pos[groups] = pos
+            groups += 1
+        sorted_id[pos] = groups - 1
+    # Renumber the groups by their first position.
+    rank = np.argsort(first_pos[:groups])
+    new_id = np.empty(groups, np.int64)
+    unique = np.empty(groups, keys.dtype)
+    for k in range(groups):
+        new_id[rank[k]] = k
+        unique[k] = flat[first_pos[rank[k]]]
+    ids = np.empty(flat.size, np.int64)
+    for r in range(flat.size):
+        ids[r] = new_id[sorted_id[r]]
+    return ids.reshape(keys.shape), unique
+
+
+@njit
+def _envelope_first(ids, count):
+    """Numba: first column of each row's envelope (the smallest unknown coupled to it by a pixel)."""
+    first = np.arange(count)
+    for p in range(ids.shape[0]):
+        low = min(min(ids[p, 0], ids[p, 1]), min(ids[p, 2], ids[p, 3]))
+        for k in range(4):
+            if low < first[ids[p, k]]:
+                first[ids[p, k]] = low
+    return first
+
+
+@njit
+def _solve_normal_equations(ids, weights, target, count, ridge):
+    """Numba: minimize ``||B x - target||^2 + ridge ||x||^2`` for unknowns ``0..count-1``.
+
+    ``B[p, ids[p, k]] += weights[p, k]``. Returns ``x`` (count,).
+    """
+    first = _envelope_first(ids, count)
+    offset = np.empty(count + 1, np.int64)
+    offset[0] = 0
+    for i in range(count):
+        offset[i + 1] = offset[i] + (i - first[i] + 1)
+    env = np.zeros(offset[count])
+    rhs = np.zeros(count)
+    for p in range(ids.shape[0]):
+        t = target[p]
+        for a in range(4):
+            ia = ids[p, a]
+            wa = weights[p, a]
+            rhs[ia] += wa * t
+            base = offset[ia] - first[ia]
+            for b in range(4):
+                ib = ids[p, b]
+                if ib <= ia:
+                    env[base + ib] += wa * weights[p, b]
+    for i in range(count):
+        env[offset[i + 1] - 1] += ridge
+    # Row-oriented envelope Cholesky, in place: L[i, j] lives at env[offset[i] + j - first[i]].
+    for i in range(count):
+        fi = first[i]
+        bi = offset[i] - fi
+        for j in range(fi, i):
+            fj = first[j]
+            bj = offset[j] - fj
+            s = env[bi + j]
+            for k in range(max(fi, fj), j):
+                s -= env[bi + k] * env[bj + k]
+            env[bi + j] = s / env[offset[j + 1] - 1]
+        s = env[bi + i]
+        for k in range(fi, i):
+            s -= env[bi + k] * env[bi + k]
+        env[bi + i] = np.sqrt(s)
+    # Forward substitution L y = rhs, then back substitution L^T x = y (column sweep).
+    for i in range(count):
+        fi = first[i]
+        bi = offset[i] - fi
+        s = rhs[i]
+        for k in range(fi, i):
+            s -= env[bi + k] * rhs[k]
+        rhs[i] = s / env[bi + i]
+    for i in range(count - 1, -1, -1):
+        fi = first[i]
+        bi = offset[i] - fi
+        xi = rhs[i] / env[bi + i]
+        rhs[i] = xi
+        for k in range(fi, i):
+            rhs[k] -= env[bi + k] * xi
+    return rhs
+
+
+@njit
+def _render_ids(ids, weights, values):
+    """Numba: ``sum_k weights[p, k] * values[ids[p, k]]`` for every pixel."""
+    out = np.empty(ids.shape[0])
+    for p in range(ids.shape[0]):
+        out[p] = (weights[p, 0] * values[ids[p, 0]] + weights[p, 1] * values[ids[p, 1]]
+                  + weights[p, 2] * values[ids[p, 2]] + weights[p, 3] * values[ids[p, 3]])
+    return out
+
+
+def _check(texels, weights, target):
+    texels = np.ascontiguousarray(texels)
+    weights = np.ascontiguousarray(weights, dtype=np.float64)
+    target = np.ascontiguousarray(target, dtype=np.float64)
+    if texels.ndim != 2 or texels.shape[1] != 4 or not np.issubdtype(texels.dtype, np.integer):
+        raise ValueError(f"texels must be an integer array of shape (p, 4), got {texels.dtype} {texels.shape}")
+    if weights.shape != texels.shape:
+        raise ValueError(f"weights must have the shape of texels {texels.shape}, got {weights.shape}")
+    if target.shape != texels.shape[:1]:
+        raise ValueError(f"target must have shape ({len(texels)},), got {target.shape}")
+    return texels.astype(np.int64), weights, target
+
+
+def rebake(texels, weights, target, *, ridge=DEFAULT_RIDGE):
+    """Least-squares texel values whose bilinear render matches ``target`` (Eq. 11).
+
+    Parameters
+    ----------
+    texels : (p, 4) array_like of int
+        Texel indices (any integer labels) each pixel reads.
+    weights : (p, 4) array_like of float64
+        Bilinear weights of those texels.
+    target : (p,) array_like of float64
+        Values the pixels should take (the reference render).
+    ridge : float, optional
+        Tikhonov weight (see the module notes); must be positive.
+
+    Returns
+    -------
+    unique : (t,) ndarray of int64
+        The distinct texels read, in order of first appearance.
+    values : (t,) ndarray of float64
+        Their re-baked values.
+
+    References
+    ----------
+    Sun et al. 2022, Eq. 11.
+    """
+    texels, weights, target = _check(texels, weights, target)
+    if not ridge > 0:
+        raise ValueError(f"ridge must be positive, got {ridge}")
+    if len(texels) == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    ids, unique = _first_occurrence_ids(texels)
+    return unique, _solve_normal_equations(ids, weights, target, len(unique), float(ridge))
+
+
+def render_texels(texels, weights, unique, values):
+    """Render pixels from the texel values returned by :func:`rebake`.
+
+    Parameters
+    ----------
+    texels, weights : (p, 4) array_like
+    unique, values : (t,) array_like
+        Texel labels and their values; every label in ``texels`` must be in ``unique``.
+
+    Returns
+    -------
+    (p,) ndarray of float64
+    """
+    texels = np.asarray(texels, dtype=np.int64)
+    unique = np.asarray(unique, dtype=np.int64)
+    order = np.argsort(unique)
+    pos = np.searchsorted(unique[order], texels)
+    if np.any(pos >= len(unique)) or np.any(unique[order][np.minimum(pos, len(unique) - 1)] != texels):
+        raise ValueError("texels holds labels that are not in unique")
+    return np.einsum("pk,pk->p", np.asarray(weights, dtype=np.float64), np.asarray(values)[order[pos]])
+
+
+def _rebake_reference(texels, weights, target, *, ridge=DEFAULT_RIDGE):
+    """Plain numpy/scipy version of :func:`rebake` (sparse normal equations, direct solve)."""
+    import scipy.sparse
+    import scipy.sparse.linalg
+
+    texels, weights, target = _check(texels, weights, target)
+    unique, inverse = np.unique(texels.reshape(-1), return_inverse=True)
+    B = scipy.sparse.csr_matrix((weights.reshape(-1), (np.repeat(np.arange(len(texels)), 4), inverse.reshape(-1))),
+                                shape=(len(texels), len(unique)))
+    normal = (B.T @ B + ridge * scipy.sparse.identity(len(unique))).tocsc()
+    values = scipy.sparse.linalg.spsolve(normal, B.T @ target)
+    return unique, np.atleast_1d(values)

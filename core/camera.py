@@ -1,0 +1,174 @@
+"""The per-triangle orthographic camera of App. A (Algorithm 1), vectorized over triangles.
+
+For triangle ``(a, b, c)`` the camera sits at ``C + 500 N`` (``C`` the barycentre, ``N`` the unit normal),
+looks along ``-N`` with up vector ``U``, and its orthographic window is the triangle's bounding box in the
+``(R, U)`` frame, widened along the shorter side to a square. ``R`` points from ``C`` to ``a``, ``U = N x R``,
+so the camera's right axis (``front x up = -N x U``) is ``R``.
+
+Screen convention used by every module of the package: pixel ``(i, j)`` (row ``i``, column ``j``) of an
+``n x n`` screen has its centre at ``(left + (j + 0.5) s / n, bottom + (i + 0.5) s / n)`` in the ``(R, U)``
+frame, ``s = right - left = top - bottom``: row 0 is the BOTTOM of the view (like Blender's render result
+and ``image.pixels``), and pixels are sampled at their centres (as Blender's workbench does with one sample).
+
+The window is centred on the bounding box, which need not be centred on ``C``; ``view_centre`` gives the
+world point at the window's centre (put a Blender orthographic camera there, ``ortho_scale = size``).
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "TriangleCameras", "triangle_cameras"]
+
+#: Distance of the eye from the barycentre along ``N`` (Algorithm 1, line 7).
+EYE_DISTANCE = 500.0
+#: Near and far clip distances from the eye (Algorithm 1, line 8).
+CLIP_NEAR = 0.1
+CLIP_FAR = 1000.0
+
+
+@dataclass(frozen=True)
+class TriangleCameras:
+    """Cameras of ``k`` triangles (Algorithm 1); row ``i`` is the camera of ``faces[i]``.
+
+    Attributes
+    ----------
+    faces : (k,) ndarray of int64
+        Face index each camera belongs to.
+    origin : (k, 3) ndarray
+        Barycentre ``C`` (the point the camera looks at).
+    right, up, normal : (k, 3) ndarray
+        Orthonormal frame ``R``, ``U``, ``N`` (right-handed: ``R x U = N``); the camera looks along ``-N``.
+    bounds : (k, 4) ndarray
+        ``(left, right, bottom, top)`` of the square window in the ``(R, U)`` frame relative to ``origin``.
+    screen_pixels : int
+        The screen is ``screen_pixels x screen_pixels``.
+    valid : (k,) ndarray of bool
+        False for degenerate triangles (zero area); their other fields are NaN.
+    """
+
+    faces: np.ndarray
+    origin: np.ndarray
+    right: np.ndarray
+    up: np.ndarray
+    normal: np.ndarray
+    bounds: np.ndarray
+    screen_pixels: int
+    valid: np.ndarray
+
+    def __len__(self):
+        return len(self.faces)
+
+    def __getitem__(self, index):
+        """Cameras of the selected rows (an int keeps a length-1 batch)."""
+        index = np.atleast_1d(np.asarray(index))
+        return TriangleCameras(self.faces[index], self.origin[index], self.right[index], self.up[index],
+                               self.normal[index], self.bounds[index], self.screen_pixels, self.valid[index])
+
+    @property
+    def size(self):
+        """(k,) side length ``s`` of the square window, in world units."""
+        return self.bounds[:, 1] - self.bounds[:, 0]
+
+    @property
+    def half_extent(self):
+        """(k,) half the side length (Blender: ``ortho_scale = 2 * half_extent``)."""
+        return 0.5 * self.size
+
+    @property
+    def pixel_size(self):
+        """(k,) side length of one screen pixel, in world units."""
+        return self.size / self.screen_pixels
+
+    @property
+    def view_centre(self):
+        """(k, 3) world point at the centre of the window."""
+        cx = 0.5 * (self.bounds[:, 0] + self.bounds[:, 1])
+        cy = 0.5 * (self.bounds[:, 2] + self.bounds[:, 3])
+        return self.origin + cx[:, None] * self.right + cy[:, None] * self.up
+
+    @property
+    def eye(self):
+        """(k, 3) eye position ``C + 500 N`` of Algorithm 1 (the window is offset from it in-plane)."""
+        return self.origin + EYE_DISTANCE * self.normal
+
+    def pixel_centres(self, row=0):
+        """World positions of the pixel centres of camera ``row`` on the plane through ``C``.
+
+        Returns
+        -------
+        (n, n, 3) ndarray
+            Entry ``[i, j]`` is the centre of pixel row ``i`` (0 = bottom), column ``j``.
+        """
+        n = self.screen_pixels
+        left, _, bottom, _ = self.bounds[row]
+        step = self.size[row] / n
+        x = left + (np.arange(n) + 0.5) * step
+        y = bottom + (np.arange(n) + 0.5) * step
+        return (self.origin[row] + x[None, :, None] * self.right[row] + y[:, None, None] * self.up[row])
+
+
+def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
+    """App. A cameras for many triangles at once.
+
+    Parameters
+    ----------
+    V : (n, 3) array_like of float64
+        Vertex positions.
+    F : (m, 3) array_like of int64
+        Triangles.
+    faces : (k,) array_like of int, optional
+        Which triangles; all of them by default.
+    screen_pixels : int, optional
+        Screen width and height in pixels (the paper uses 64).
+
+    Returns
+    -------
+    TriangleCameras
+
+    Raises
+    ------
+    ValueError
+        On malformed arrays, indices out of range or ``screen_pixels < 1``.
+
+    References
+    ----------
+    Sun et al. 2022, App. A, Algorithm 1.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        raise ValueError(f"F must be an integer array of shape (m, 3), got {F.dtype} {F.shape}")
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        raise ValueError("F refers to vertices outside V")
+    if int(screen_pixels) != screen_pixels or screen_pixels < 1:
+        raise ValueError(f"screen_pixels must be a positive integer, got {screen_pixels}")
+    faces = np.arange(len(F)) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(F)):
+        raise ValueError("faces refers to triangles outside F")
+
+    a, b, c = (V[F[faces, k]] for k in range(3))
+    centre = (a + b + c) / 3.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal = np.cross(b - a, c - a)
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        right = a - centre
+        right /= np.linalg.norm(right, axis=1, keepdims=True)
+        up = np.cross(normal, right)
+        up /= np.linalg.norm(up, axis=1, keepdims=True)
+    valid = np.isfinite(normal).all(1) & np.isfinite(right).all(1) & np.isfinite(up).all(1)
+
+    corners = np.stack([a, b, c], axis=1) - centre[:, None, :]
+    x = np.einsum("kvd,kd->kv", corners, right)
+    y = np.einsum("kvd,kd->kv", corners, up)
+    left, rgt = x.min(1), x.max(1)
+    bottom, top = y.min(1), y.max(1)
+    width, height = rgt - left, top - bottom
+    grow_y = np.maximum(width - height, 0.0) / 2.0
+    grow_x = np.maximum(height - width, 0.0) / 2.0
+    bounds = np.stack([left - grow_x, rgt + grow_x, bottom - grow_y, top + grow_y], axis=1)
+
+    for field in (centre, normal, right, up, bounds):
+        field[~valid] = np.nan
+    return TriangleCameras(faces, centre, right, up, normal, bounds, int(screen_pixels), valid)

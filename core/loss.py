@@ -1,0 +1,523 @@
+"""The triangle-wise perceptual loss-on-screen E (Sec. 4.1.1, Eq. 3, 5, 8-11), batched and fast.
+
+For triangle ``i`` and a deformation ``(alpha, lambda1, lambda2, beta)`` (Eq. 13-14):
+
+1. camera ``C_i`` of App. A (:mod:`.camera`), screen ``n x n`` (64 by default);
+2. reference render (Eq. 1, 8-9): the one-ring of ``i`` (triangles sharing a vertex, welded by position)
+   with its input UVs and the input texture at its own resolution, luma only (:mod:`.raster`);
+3. deformed UVs: every one-ring triangle's texel-space UVs mapped by ``x -> A (x - c) + c`` with
+   ``A = R(alpha) S(lambda1, lambda2, beta)`` (:func:`.deformation.jacobian`), i.e. ``phi~`` of Eq. 6 applied
+   to the whole one-ring. The paper sets the offset ``t_i = 0``; the offset does not change the area and
+   is free, so we fix ``c``: the texel centre nearest to the UV barycentre of triangle ``i``. Fixing a
+   point of the triangle keeps the texel phase under the triangle stable while ``A`` varies (with ``t = 0``
+   a triangle far from the UV origin would slide across many texels for a small change of ``A``), and
+   fixing it on a texel centre makes the 90-degree symmetry of Eq. 14 exact: a rotation by 90 degrees about
+   a texel centre maps the texel lattice onto itself. ``A`` acts on texel units ``(u * w, v * h)`` so
+   pixels are square for non-square textures too. Only UVs change: the surface point each pixel sees is
+   cached, and only the bilinear weights are recomputed per evaluation.
+4. re-bake (Eq. 11) of the texels the deformed one-ring reads, by least squares (:mod:`.bake_lsq`), at the
+   same resolution, and render again (Eq. 2);
+5. ``E = GMSD(reference, deformed)`` (Eq. 3, 5; :mod:`.gmsd`); uncovered pixels are 0 in both renders.
+
+Performance: everything per evaluation runs in one numba kernel; the per-triangle cache holds arrays only
+(picklable; numba kernels are module functions), about 100 KB per triangle at 64 px.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._jit import njit
+from .bake_lsq import DEFAULT_RIDGE, _first_occurrence_ids, _render_ids, _solve_normal_equations
+from .camera import triangle_cameras
+from .gmsd import GMSD_C, _gmsd_gradient_kernel, _pooled_gradient_kernel, luma as _to_luma
+from .one_ring import one_ring_faces
+from .raster import _rasterize_kernel, rasterize, sample_bilinear, texel_coordinates
+
+__all__ = ["TriangleProblem", "TriangleBatch", "texture_luma", "triangle_problem", "prepare_triangles",
+           "render_reference"]
+
+# Dense lookup grids above this many cells fall back to sorting texel keys.
+_GRID_MAX_CELLS = 1 << 22
+
+
+def texture_luma(texture):
+    """Luma of a texture for the loss: (h, w) passes through, (h, w, c) -> Rec. 601 luma.
+
+    Parameters
+    ----------
+    texture : (h, w) or (h, w, c) array_like in [0, 1], row 0 = bottom (v = 0)
+
+    Returns
+    -------
+    (h, w) ndarray of float64, C-contiguous
+    """
+    texture = np.asarray(texture, dtype=np.float64)
+    if texture.ndim not in (2, 3):
+        raise ValueError(f"texture must have shape (h, w) or (h, w, c), got {texture.shape}")
+    if texture.shape[0] < 1 or texture.shape[1] < 1:
+        raise ValueError(f"texture is empty: {texture.shape}")
+    return np.ascontiguousarray(_to_luma(texture, channel_axis=-1 if texture.ndim == 3 else None))
+
+
+def _check_inputs(V, F, uv):
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.asarray(F)
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        raise ValueError(f"F must be an integer array of shape (m, 3), got {F.dtype} {F.shape}")
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        raise ValueError("F refers to vertices outside V")
+    if uv.shape != (len(F), 3, 2):
+        raise ValueError(f"uv must have shape (m, 3, 2) = {(len(F), 3, 2)}, got {uv.shape}")
+    if not (np.isfinite(V).all() and np.isfinite(uv).all()):
+        raise ValueError("V and uv must be finite")
+    return V, F, uv
+
+
+def _check_params(params):
+    params = np.asarray(params, dtype=np.float64)
+    if params.ndim == 1:
+        params = params[None, :]
+    if params.ndim != 2 or params.shape[1] != 4:
+        raise ValueError(f"params must have shape (k, 4) rows (alpha, lambda1, lambda2, beta), got {params.shape}")
+    if not np.isfinite(params).all():
+        raise ValueError("params must be finite")
+    return np.ascontiguousarray(params)
+
+
+# ---------------------------------------------------------------------------------------------------- kernels
+@njit
+def _sample_luma_kernel(luma, points):
+    h, w = luma.shape
+    out = np.empty(points.shape[0])
+    for p in range(points.shape[0]):
+        x = points[p, 0] - 0.5
+        y = points[p, 1] - 0.5
+        x0 = np.floor(x)
+        y0 = np.floor(y)
+        fx = x - x0
+        fy = y - y0
+        ix0 = int(x0) % w
+        iy0 = int(y0) % h
+        ix1 = (ix0 + 1) % w
+        iy1 = (iy0 + 1) % h
+        out[p] = ((1 - fx) * (1 - fy) * luma[iy0, ix0] + fx * (1 - fy) * luma[iy0, ix1]
+                  + (1 - fx) * fy * luma[iy1, ix0] + fx * fy * luma[iy1, ix1])
+    return out
+
+
+@njit
+def _constant_kernel(luma, points, centre):
+    """True when every texel that a deformed point ``A (q - c) + c`` with ``||A|| <= 1`` can read has the same
+    luma: such points stay in the disk of radius ``max |q - c|`` around ``c``; a continuous texel coordinate
+    ``x`` reads texels ``floor(x)`` and ``floor(x) + 1``, i.e. texels ``t`` with ``|x - t|_inf < 1``."""
+    h, w = luma.shape
+    if points.shape[0] == 0:
+        return True
+    radius = 0.0
+    for p in range(points.shape[0]):
+        dx = points[p, 0] - centre[0]
+        dy = points[p, 1] - centre[1]
+        radius = max(radius, np.sqrt(dx * dx + dy * dy))
+    radius = radius * (1.0 + 1e-12) + 1e-9  # round-off in the deformation must not escape the test
+    cx = centre[0] - 0.5
+    cy = centre[1] - 0.5
+    value = luma[int(np.floor(cy)) % h, int(np.floor(cx)) % w]
+    for iy in range(int(np.floor(cy - radius)) - 1, int(np.ceil(cy + radius)) + 2):
+        ey = max(abs(iy - cy) - 1.0, 0.0)
+        if ey > radius:
+            continue
+        for ix in range(int(np.floor(cx - radius)) - 1, int(np.ceil(cx + radius)) + 2):
+            ex = max(abs(ix - cx) - 1.0, 0.0)
+            if ex * ex + ey * ey > radius * radius:
+                continue
+            if luma[iy % h, ix % w] != value:
+                return False
+    return True
+
+
+@njit
+def _deformed_ids(points, a00, a01, a10, a11, cx, cy, w, h):
+    """Numba: texel ids (first occurrence, local) and bilinear weights of the deformed points."""
+    count = points.shape[0]
+    base_x = np.empty(count, np.int64)
+    base_y = np.empty(count, np.int64)
+    weights = np.empty((count, 4))
+    min_x = min_y = np.iinfo(np.int64).max
+    max_x = max_y = np.iinfo(np.int64).min
+    for p in range(count):
+        dx = points[p, 0] - cx
+        dy = points[p, 1] - cy
+        x = a00 * dx + a01 * dy + cx - 0.5
+        y = a10 * dx + a11 * dy + cy - 0.5
+        fx0 = np.floor(x)
+        fy0 = np.floor(y)
+        fx = x - fx0
+        fy = y - fy0
+        ix = int(fx0)
+        iy = int(fy0)
+        base_x[p] = ix
+        base_y[p] = iy
+        weights[p, 0] = (1.0 - fx) * (1.0 - fy)
+        weights[p, 1] = fx * (1.0 - fy)
+        weights[p, 2] = (1.0 - fx) * fy
+        weights[p, 3] = fx * fy
+        min_x = min(min_x, ix)
+        max_x = max(max_x, ix)
+        min_y = min(min_y, iy)
+        max_y = max(max_y, iy)
+    ids = np.empty((count, 4), np.int64)
+    if count == 0:
+        return ids, weights, np.zeros(0, np.int64)
+    width = max_x - min_x + 2
+    height = max_y - min_y + 2
+    if width <= w and height <= h and width * height <= _GRID_MAX_CELLS:
+        # No two cells of the box alias under REPEAT: the unwrapped cell is the texel's identity.
+        grid = np.full(width * height, -1, np.int64)
+        texel = np.empty(4 * count, np.int64)
+        n_texels = 0
+        for p in range(count):
+            for k in range(4):
+                gx = base_x[p] - min_x + (k & 1)
+                gy = base_y[p] - min_y + (k >> 1)
+                cell = gy * width + gx
+                t = grid[cell]
+                if t < 0:
+                    t = n_texels
+                    grid[cell] = t
+                    texel[t] = ((gy + min_y) % h) * w + (gx + min_x) % w
+                    n_texels += 1
+                ids[p, k] = t
+        return ids, weights, texel[:n_texels]
+    keys = np.empty((count, 4), np.int64)
+    for p in range(count):
+        for k in range(4):
+            keys[p, k] = ((base_y[p] + (k >> 1)) % h) * w + (base_x[p] + (k & 1)) % w
+    ids, texel = _first_occurrence_ids(keys)
+    return ids, weights, texel
+
+
+@njit
+def _evaluate_kernel(params, points, pixel, reference, reference_gradient, centre, w, h, n, ridge, c_gmsd):
+    k = params.shape[0]
+    out = np.empty(k)
+    m = n // 2
+    gradient = np.empty((m, m))
+    for s in range(k):
+        alpha, l1, l2, beta = params[s, 0], params[s, 1], params[s, 2], params[s, 3]
+        ca, sa = np.cos(alpha), np.sin(alpha)
+        cb, sb = np.cos(beta), np.sin(beta)
+        s00 = l1 * cb * cb + l2 * sb * sb
+        s11 = l1 * sb * sb + l2 * cb * cb
+        s01 = (l1 - l2) * cb * sb
+        a00 = ca * s00 - sa * s01
+        a01 = ca * s01 - sa * s11
+        a10 = sa * s00 + ca * s01
+        a11 = sa * s01 + ca * s11
+        ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1], w, h)
+        values = _solve_normal_equations(ids, weights, reference, texel.shape[0], ridge)
+        rendered = _render_ids(ids, weights, values)
+        image = np.zeros(n * n)
+        for p in range(pixel.shape[0]):
+            image[pixel[p]] = rendered[p]
+        _pooled_gradient_kernel(image.reshape(n, n), gradient)
+        out[s] = _gmsd_gradient_kernel(reference_gradient, gradient, c_gmsd)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------- problems
+@dataclass(frozen=True)
+class TriangleProblem:
+    """Everything needed to evaluate E for one triangle; arrays only, so it pickles cheaply.
+
+    Attributes
+    ----------
+    face : int
+    screen_pixels : int
+        ``n`` (even); the screen is ``n x n``, row 0 at the bottom of the view.
+    texture_shape : tuple of int
+        ``(h, w)`` of the texture.
+    centre : (2,) ndarray
+        Fixed point ``c`` of the deformation in texel units (a texel centre).
+    pixel : (p,) ndarray of int64
+        Covered pixels (flat ``i * n + j``), ascending.
+    points : (p, 2) ndarray
+        Texel-space point ``(u * w, v * h)`` each covered pixel sees under the input UVs.
+    reference : (p,) ndarray
+        Reference render (luma) at the covered pixels.
+    reference_gradient : (n/2, n/2) ndarray
+        Gradient magnitude of the pooled reference screen (GMSD's fixed half).
+    uv_area : float
+        Area of the triangle in texel units, ``|triangle^t| * w * h``.
+    is_constant : bool
+        True when every texel the one-ring can read under any deformation with ``lambda1, lambda2 <= 1`` has
+        the same luma; then ``E == 0`` exactly for all such deformations (and :meth:`evaluate` returns 0).
+    ridge : float
+        Tikhonov weight of the re-bake.
+    """
+
+    face: int
+    screen_pixels: int
+    texture_shape: tuple
+    centre: np.ndarray
+    pixel: np.ndarray
+    points: np.ndarray
+    reference: np.ndarray
+    reference_gradient: np.ndarray
+    uv_area: float
+    is_constant: bool
+    ridge: float = DEFAULT_RIDGE
+
+    def evaluate(self, params):
+        """Perceptual loss E for deformations of this triangle.
+
+        Parameters
+        ----------
+        params : (k, 4) or (4,) array_like
+            Rows ``(alpha, lambda1, lambda2, beta)`` (Eq. 13-14).
+
+        Returns
+        -------
+        (k,) ndarray of float64
+            ``E = GMSD(reference render, re-baked deformed render)``.
+
+        References
+        ----------
+        Sun et al. 2022, Eq. 3, 5, 8-11.
+        """
+        params = _check_params(params)
+        if self.is_constant:
+            within = (np.abs(params[:, 1]) <= 1.0) & (np.abs(params[:, 2]) <= 1.0)
+            if within.all():
+                return np.zeros(len(params))
+        h, w = self.texture_shape
+        return _evaluate_kernel(params, self.points, self.pixel, self.reference, self.reference_gradient,
+                                self.centre, w, h, self.screen_pixels, self.ridge, GMSD_C)
+
+    def reference_image(self):
+        """(n, n) reference luma screen, row 0 = bottom of the view, 0 where nothing is hit."""
+        n = self.screen_pixels
+        image = np.zeros(n * n)
+        image[self.pixel] = self.reference
+        return image.reshape(n, n)
+
+    def deformed_image(self, params):
+        """(n, n) re-baked deformed luma screen for one parameter row (numpy reference path)."""
+        from .bake_lsq import _rebake_reference
+        from .deformation import jacobian
+        from .raster import bilinear_weights, deform_points
+
+        params = _check_params(params)
+        if len(params) != 1:
+            raise ValueError("deformed_image takes one parameter row")
+        R, S = jacobian(params[0])
+        points = deform_points(self.points, R @ S, self.centre)
+        texels, weights = bilinear_weights(points, self.texture_shape)
+        n = self.screen_pixels
+        image = np.zeros(n * n)
+        if len(texels):
+            unique, values = _rebake_reference(texels, weights, self.reference, ridge=self.ridge)
+            image[self.pixel] = np.einsum("pk,pk->p", weights, values[np.searchsorted(unique, texels)])
+        return image.reshape(n, n)
+
+
+def _evaluate_reference(problem, params):
+    """Plain numpy/scipy E (sparse normal equations, numpy GMSD), for tests of the fused kernel."""
+    from .gmsd import gmsd
+
+    params = _check_params(params)
+    reference = problem.reference_image()
+    return np.array([gmsd(reference, problem.deformed_image(row)) for row in params])
+
+
+@dataclass(frozen=True)
+class TriangleBatch:
+    """Problems of many triangles of one mesh in concatenated arrays (picklable, cheap to slice).
+
+    ``batch[i]`` is the :class:`TriangleProblem` of ``batch.faces[i]``; ``batch.evaluate(i, params)`` is
+    ``batch[i].evaluate(params)``.
+    """
+
+    faces: np.ndarray
+    screen_pixels: int
+    texture_shape: tuple
+    offsets: np.ndarray
+    centre: np.ndarray
+    pixel: np.ndarray
+    points: np.ndarray
+    reference: np.ndarray
+    reference_gradient: np.ndarray
+    uv_area: np.ndarray
+    is_constant: np.ndarray
+    ridge: float = DEFAULT_RIDGE
+
+    def __len__(self):
+        return len(self.faces)
+
+    def __getitem__(self, i):
+        i = int(i)
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"problem {i} out of range for a batch of {len(self)}")
+        i %= len(self)
+        lo, hi = self.offsets[i], self.offsets[i + 1]
+        return TriangleProblem(int(self.faces[i]), self.screen_pixels, self.texture_shape, self.centre[i],
+                               self.pixel[lo:hi], self.points[lo:hi], self.reference[lo:hi],
+                               self.reference_gradient[i], float(self.uv_area[i]), bool(self.is_constant[i]),
+                               self.ridge)
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+    def evaluate(self, i, params):
+        """E of problem ``i`` for parameter rows ``params`` (k, 4) -> (k,)."""
+        return self[i].evaluate(params)
+
+
+def _centre_texel(uv_face, w, h):
+    """Texel centre nearest to the UV barycentre of one triangle, in texel units."""
+    bary = uv_face.mean(axis=0) * np.array([w, h], dtype=np.float64)
+    return np.floor(bary) + 0.5
+
+
+def _uv_area(uv_faces, w, h):
+    e1 = uv_faces[:, 1] - uv_faces[:, 0]
+    e2 = uv_faces[:, 2] - uv_faces[:, 0]
+    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * w * h
+
+
+def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE):
+    """Build the loss problems of many triangles of one mesh.
+
+    Parameters
+    ----------
+    V : (n, 3) array_like of float64
+    F : (m, 3) array_like of int64
+    uv : (m, 3, 2) array_like of float64
+        Input per-corner UVs (``psi^``).
+    luma : (h, w) or (h, w, c) array_like
+        Texture (row 0 = bottom) at its own resolution; colour is reduced to luma (:func:`texture_luma`).
+    faces : (k,) array_like of int, optional
+        Triangles to prepare; all by default. Memory is about ``n^2 * 40`` bytes per triangle (165 KB at
+        n = 64): prepare large meshes in chunks.
+    screen_pixels : int, optional
+        Even screen size ``n`` (64 in the paper).
+    adjacency : tuple, optional
+        ``(offsets, neighbours)`` from :func:`.one_ring.one_ring_faces` with ``V`` (compute it once per mesh
+        when preparing chunks).
+    ridge : float, optional
+        Tikhonov weight of the re-bake (:mod:`.bake_lsq`).
+
+    Returns
+    -------
+    TriangleBatch
+
+    References
+    ----------
+    Sun et al. 2022, Sec. 4.1.1, App. A.
+    """
+    V, F, uv = _check_inputs(V, F, uv)
+    luma = texture_luma(luma)
+    if int(screen_pixels) != screen_pixels or screen_pixels < 2 or screen_pixels % 2:
+        raise ValueError(f"screen_pixels must be an even integer >= 2, got {screen_pixels}")
+    if not ridge > 0:
+        raise ValueError(f"ridge must be positive, got {ridge}")
+    n = int(screen_pixels)
+    h, w = luma.shape
+    faces = np.arange(len(F), dtype=np.int64) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(F)):
+        raise ValueError("faces refers to triangles outside F")
+    if adjacency is None:
+        adjacency = one_ring_faces(F, V=V)
+    ring_offsets, ring = adjacency
+    cameras = triangle_cameras(V, F, faces, screen_pixels=n)
+    scale = np.array([w, h], dtype=np.float64)
+
+    k = len(faces)
+    centres = np.empty((k, 2))
+    gradients = np.empty((k, n // 2, n // 2))
+    constant = np.empty(k, dtype=bool)
+    pixels, points, references = [], [], []
+    offsets = np.zeros(k + 1, np.int64)
+    for row, f in enumerate(faces):
+        centres[row] = _centre_texel(uv[f], w, h)
+        if cameras.valid[row]:
+            draw = ring[ring_offsets[f]:ring_offsets[f + 1]]
+            pixel, hit_face, bary = _rasterize_kernel(V, F, draw, cameras.origin[row], cameras.right[row],
+                                                      cameras.up[row], cameras.normal[row],
+                                                      cameras.bounds[row], n)
+        else:
+            pixel, hit_face, bary = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+        point = np.einsum("pk,pkd->pd", bary, uv[hit_face]) * scale
+        reference = _sample_luma_kernel(luma, point)
+        image = np.zeros(n * n)
+        image[pixel] = reference
+        _pooled_gradient_kernel(image.reshape(n, n), gradients[row])
+        constant[row] = _constant_kernel(luma, point, centres[row])
+        pixels.append(pixel)
+        points.append(point)
+        references.append(reference)
+        offsets[row + 1] = offsets[row] + len(pixel)
+    cat = (lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape))
+    return TriangleBatch(faces, n, (h, w), offsets, centres, cat(pixels, (0,)).astype(np.int64),
+                         cat(points, (0, 2)), cat(references, (0,)), gradients, _uv_area(uv[faces], w, h),
+                         constant, float(ridge))
+
+
+def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE):
+    """The loss problem of one triangle (see :func:`prepare_triangles`).
+
+    Returns
+    -------
+    TriangleProblem
+        ``problem.evaluate(params)`` maps (k, 4) rows ``(alpha, lambda1, lambda2, beta)`` to (k,) E values.
+    """
+    return prepare_triangles(V, F, uv, luma, [face], screen_pixels=screen_pixels, adjacency=adjacency,
+                             ridge=ridge)[0]
+
+
+def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=None):
+    """Reference render of one triangle's one-ring with its App. A camera, all texture channels.
+
+    Parameters
+    ----------
+    V : (n, 3) array_like of float64
+    F : (m, 3) array_like of int64
+    uv : (m, 3, 2) array_like of float64
+    texture : (h, w) or (h, w, c) array_like
+        Row 0 = bottom (``v = 0``), as Blender's ``image.pixels``.
+    face : int
+    screen_pixels : int, optional
+    adjacency : tuple, optional
+        Output of :func:`.one_ring.one_ring_faces` with ``V``.
+
+    Returns
+    -------
+    image : (n, n) or (n, n, c) ndarray of float64
+        Row 0 is the BOTTOM of the view (Blender's render-result order); pixel ``(i, j)`` samples the surface
+        at its centre ``(left + (j + 0.5) s / n, bottom + (i + 0.5) s / n)`` of the camera's ``(R, U)``
+        window; bilinear texture lookup with REPEAT; uncovered pixels are 0.
+    mask : (n, n) ndarray of bool
+        Covered pixels.
+    camera : TriangleCameras
+        The camera (a batch of length 1): world frame, window bounds, ``view_centre``, ``half_extent``.
+    """
+    V, F, uv = _check_inputs(V, F, uv)
+    texture = np.asarray(texture, dtype=np.float64)
+    if texture.ndim not in (2, 3):
+        raise ValueError(f"texture must have shape (h, w) or (h, w, c), got {texture.shape}")
+    face = int(face)
+    if not 0 <= face < len(F):
+        raise ValueError(f"face {face} outside 0..{len(F) - 1}")
+    offsets, ring = one_ring_faces(F, V=V) if adjacency is None else adjacency
+    camera = triangle_cameras(V, F, [face], screen_pixels=screen_pixels)
+    raster = rasterize(V, F, ring[offsets[face]:offsets[face + 1]], camera)
+    values = sample_bilinear(texture, texel_coordinates(uv, raster.face, raster.bary, texture.shape))
+    n = camera.screen_pixels
+    image = np.zeros((n * n,) + texture.shape[2:])
+    image[raster.pixel] = values
+    mask = np.zeros(n * n, dtype=bool)
+    mask[raster.pixel] = True
+    return image.reshape((n, n) + texture.shape[2:]), mask.reshape(n, n), camera
