@@ -1,0 +1,702 @@
+"""Mesh-wise stage: one conforming, flip-free UV map that fits per-triangle optimal Jacobians (Sec. 4.2, App. B).
+
+The unknown is the map phi from the input UVs to new UVs, piecewise linear on the input triangles, so its
+Jacobian ``J_i = grad phi_i`` maps input-UV edge vectors of triangle i to its new-UV edge vectors. The
+triangle-wise stage gives the optimum ``R_bar_i S_bar_i`` of each triangle up to a quarter turn. We minimize
+Eq. 19 with a flip barrier,
+
+    sum_i a_i [ w_R |R_i - R(k_i pi/2) R_bar_i|^2 + w_S |S_i - S_bar_i|^2
+                + w_rs |J_i - R_i S_i|^2 + w_b B(det J_i; s_i) ],
+
+by the local-global scheme of App. B: the local step picks k_i, R_i = R(theta_i), S_i per triangle, the global
+step minimizes Eq. 27 over the chart-vertex UVs by damped Newton.
+
+Decisions (the paper leaves them open):
+
+* Area weights ``a_i``: the input-UV area of triangle i divided by the mean input-UV area, so the sum is the
+  integral of the per-point energy over the input UV domain (small triangles do not dominate) and the
+  paper's balance ``w_rs = 1e-5`` keeps its meaning (a_i averages to 1). The local step does not depend on a_i.
+* Local step: for each of the four quarter turns k, theta in closed form and then S from Eq. 26; the k with the
+  lowest per-triangle energy wins, and a triangle keeps its previous (k, R, S) if that is lower still, so the
+  objective never increases. theta minimizes the exact block of Eq. 19, ``w_R |R - R_k R_bar|^2 +
+  w_rs |J - R S|^2``, whose maximizer of ``tr(R^T M)`` is ``M = w_R R_k R_bar + w_rs J S``; Eq. 25 writes
+  the second term as ``w_rs |R - J S^-1|^2``, which agrees when S is a multiple of the identity and needs no
+  inverse of S here. Eq. 26 is solved exactly over symmetric S: ``S = (w_S S_bar + w_rs sym(R^T J)) /
+  (w_S + w_rs)`` (the linear system is diagonal in (s11, s12, s22)).
+* Barrier: the spline barrier of Schueller et al. 2013, ``B(d) = 1/g(d/s) - 1`` for ``0 < d < s`` with
+  ``g(t) = 1 - (1 - t)^3``, 0 above s, infinite at and below 0, on ``d = det J_i``; the per-triangle
+  threshold is ``s_i = barrier_threshold * min(1, det S_bar_i)`` (the input has det J = 1). Its Hessian is
+  projected to positive semi-definite per triangle.
+* Orientation: ``det J_i > 0`` says triangle i keeps the orientation it has in the input UVs, whatever the
+  orientation of its chart, so mirrored charts (and mirrored triangles inside a chart) need no reflection:
+  the barrier and the line search work on det J directly.
+* Degenerate input triangles (input-UV area at most ``degenerate_tol`` times the squared longest edge) have
+  no Jacobian: they get weight 0 (no fit, no barrier), their corners still move with their chart, and they
+  are neither counted as flipped nor allowed to stop the line search.
+* Gauge: the objective is invariant to translating a chart; the first chart vertex of every chart is held
+  fixed, and a tiny diagonal shift (1e-12 of the mean diagonal) keeps vertices that only touch degenerate
+  triangles solvable.
+* Eq. 28 compares the weighted terms of Eq. 27: ``w_b`` is divided by 20 after an iteration in which
+  ``w_b E_barrier > w_rs E_rs``. Lowering ``w_b`` only lowers the objective, so the history stays monotone.
+* Factorization: the Hessian's sparsity pattern is fixed (one 6x6 block per triangle), so the COO to CSC map
+  and a fill-reducing permutation (from the first factorization) are computed once; later factorizations
+  only refill values. While no barrier is active the Hessian is constant and its factorization is reused.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from .charts import UVTopology, uv_topology, validate_faces_and_uv
+from .deformation import jacobian, rotation
+
+__all__ = [
+    "MeshwiseResult",
+    "solve_meshwise",
+    "iter_solve_meshwise",
+    "barrier",
+    "local_step",
+    "fit_energy",
+]
+
+_GRAD = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
+_DET_HESSIAN = np.array([[0.0, 0, 0, 1], [0, 0, -1, 0], [0, -1, 0, 0], [1, 0, 0, 0]])
+
+
+@dataclass(frozen=True, eq=False)
+class MeshwiseResult:
+    """Output of :func:`solve_meshwise`.
+
+    Attributes
+    ----------
+    uv : (m, 3, 2) float64 ndarray
+        New UV per face corner; corners sharing a chart vertex share their UV.
+    vertex_uv : (k, 2) float64 ndarray
+        New UV of every chart vertex of ``topology``.
+    topology : UVTopology
+        Charts of the input (the output has the same ones).
+    iterations : int
+        Local-global iterations run.
+    energy_history : (iterations + 1,) float64 ndarray
+        Objective (Eq. 19 plus ``w_b`` times the barrier) at the start and after every iteration;
+        non-increasing.
+    fit_energy : float
+        Eq. 16 summed with the area weights at the final map, with R, S the polar factors of its Jacobians
+        (for ``formulation="common"``: Eq. 15 summed).
+    quarter_turns : (m,) int64 ndarray
+        The chosen k_i.
+    flipped : int
+        Non-degenerate triangles whose orientation differs from the input's.
+    degenerate : int
+        Input triangles treated as degenerate (not fitted, not counted as flipped).
+    barrier_weight : float
+        Final w_b.
+    converged : bool
+        Whether the tolerance was met before ``max_iterations``.
+    """
+
+    uv: np.ndarray
+    vertex_uv: np.ndarray
+    topology: UVTopology
+    iterations: int
+    energy_history: np.ndarray
+    fit_energy: float
+    quarter_turns: np.ndarray
+    flipped: int
+    degenerate: int
+    barrier_weight: float
+    converged: bool
+
+
+def barrier(d, s):
+    """Spline barrier of Schueller et al. 2013 on Jacobian determinants, with first and second derivatives.
+
+    Parameters
+    ----------
+    d : (m,) array_like of float
+        Determinants.
+    s : (m,) array_like of float
+        Positive thresholds; the barrier is 0 for ``d >= s``.
+
+    Returns
+    -------
+    value, first, second : (m,) float64 ndarrays
+        ``B(d) = 1/g(d/s) - 1`` with ``g(t) = t^3 - 3t^2 + 3t = 1 - (1-t)^3`` on ``0 < d < s``, its first and
+        second derivatives in d; ``inf`` (and nan derivatives) for ``d <= 0``. B is C2 at ``d = s``.
+
+    References
+    ----------
+    Schueller, Kavan, Panozzo, Sorkine-Hornung 2013, "Locally injective mappings", Eq. 4-5; Sun et al. 2022,
+    Eq. 27.
+    """
+    d = np.asarray(d, dtype=np.float64)
+    s = np.broadcast_to(np.asarray(s, dtype=np.float64), d.shape)
+    value = np.zeros(d.shape)
+    first = np.zeros(d.shape)
+    second = np.zeros(d.shape)
+    active = (d < s) & (d > 0)
+    t = d[active] / s[active]
+    one_minus = 1.0 - t
+    g = 1.0 - one_minus ** 3
+    dg = 3.0 * one_minus ** 2 / s[active]
+    ddg = -6.0 * one_minus / s[active] ** 2
+    value[active] = 1.0 / g - 1.0
+    first[active] = -dg / g ** 2
+    second[active] = (2.0 * dg ** 2 - g * ddg) / g ** 3
+    dead = d <= 0
+    value[dead] = np.inf
+    first[dead] = np.nan
+    second[dead] = np.nan
+    return value, first, second
+
+
+def _frob2(A):
+    return np.einsum("...ij,...ij->...", A, A)
+
+
+def _sym(A):
+    return 0.5 * (A + np.swapaxes(A, -1, -2))
+
+
+def _angle_of(M):
+    return np.arctan2(M[..., 1, 0] - M[..., 0, 1], M[..., 0, 0] + M[..., 1, 1])
+
+
+def local_step(J, R_bar, S_bar, w_R, w_S, w_rs, S_previous):
+    """Local step of App. B: quarter turn k, rotation R = R(theta) and stretch S for every triangle.
+
+    Parameters
+    ----------
+    J : (m, 2, 2) float64 array
+        Current Jacobians.
+    R_bar, S_bar : (m, 2, 2) float64 arrays
+        Target rotations and symmetric stretches.
+    w_R, w_S : (m,) float64 arrays
+        Non-negative weights of Eq. 16-17.
+    w_rs : float
+        Weight of ``|J - R S|^2`` (Eq. 19).
+    S_previous : (m, 2, 2) float64 array
+        Stretch of the previous iteration (used in the theta update).
+
+    Returns
+    -------
+    k : (m,) int64 ndarray
+    R, S : (m, 2, 2) float64 ndarrays
+    energy : (m,) float64 ndarray
+        ``w_R |R - R(k pi/2) R_bar|^2 + w_S |S - S_bar|^2 + w_rs |J - R S|^2`` per triangle.
+
+    Notes
+    -----
+    For each k in {0, 1, 2, 3}: theta maximizes ``tr(R(theta)^T M)`` with ``M = w_R R(k pi/2) R_bar + w_rs J
+    S_previous`` (the exact minimizer of Eq. 19 over R with S fixed; Eq. 25 of the paper approximates its
+    second term), then S solves Eq. 26 over symmetric matrices. The k of lowest energy is returned.
+
+    References
+    ----------
+    Sun et al. 2022, App. B, Eq. 25-26.
+    """
+    w_R = w_R[:, None, None]
+    w_S = w_S[:, None, None]
+    best_energy = np.full(J.shape[0], np.inf)
+    best_k = np.zeros(J.shape[0], dtype=np.int64)
+    best_R = np.empty_like(J)
+    best_S = np.empty_like(J)
+    JS = J @ S_previous
+    for k in range(4):
+        target_R = rotation(np.full(J.shape[0], k * np.pi / 2)) @ R_bar
+        R = rotation(_angle_of(w_R * target_R + w_rs * JS))
+        S = (w_S * S_bar + w_rs * _sym(np.swapaxes(R, 1, 2) @ J)) / np.maximum(w_S + w_rs, np.finfo(float).tiny)
+        energy = (w_R[:, 0, 0] * _frob2(R - target_R) + w_S[:, 0, 0] * _frob2(S - S_bar)
+                  + w_rs * _frob2(J - R @ S))
+        better = energy < best_energy
+        best_energy[better] = energy[better]
+        best_k[better] = k
+        best_R[better] = R[better]
+        best_S[better] = S[better]
+    return best_k, best_R, best_S, best_energy
+
+
+def _polar(J):
+    """Rotation and symmetric factor of 2x2 matrices with positive determinant (closed form)."""
+    R = rotation(_angle_of(J))
+    return R, np.swapaxes(R, 1, 2) @ J
+
+
+def fit_energy(J, R_bar, S_bar, w_R, w_S, *, formulation="perceptual"):
+    """Per-triangle fit of Jacobians to their targets (Eq. 16, or Eq. 15 for ``formulation="common"``).
+
+    Parameters
+    ----------
+    J : (m, 2, 2) array_like of float
+        Jacobians with positive determinant.
+    R_bar, S_bar : (m, 2, 2) array_like of float
+        Targets.
+    w_R, w_S : (m,) array_like of float
+        Weights (ignored for ``"common"``).
+    formulation : {"perceptual", "common"}
+
+    Returns
+    -------
+    energy : (m,) float64 ndarray
+        Minimum over the four quarter turns k.
+    k : (m,) int64 ndarray
+        The minimizing k.
+    """
+    J = np.asarray(J, dtype=np.float64)
+    R_bar = np.asarray(R_bar, dtype=np.float64)
+    S_bar = np.asarray(S_bar, dtype=np.float64)
+    m = J.shape[0]
+    if formulation == "perceptual":
+        R, S = _polar(J)
+        stretch_term = np.asarray(w_S, dtype=np.float64) * _frob2(S - S_bar)
+    elif formulation != "common":
+        raise ValueError(f"formulation must be 'perceptual' or 'common', got {formulation!r}")
+    energies = []
+    for k in range(4):
+        turned = rotation(np.full(m, k * np.pi / 2)) @ R_bar
+        if formulation == "perceptual":
+            energies.append(np.asarray(w_R, dtype=np.float64) * _frob2(R - turned) + stretch_term)
+        else:
+            energies.append(_frob2(J - turned @ S_bar))
+    energies = np.stack(energies)
+    k = np.argmin(energies, axis=0)
+    return energies[k, np.arange(m)], k
+
+
+def _parse_targets(targets, m):
+    if isinstance(targets, (tuple, list)) and len(targets) == 2:
+        R_bar = np.asarray(targets[0], dtype=np.float64)
+        S_bar = np.asarray(targets[1], dtype=np.float64)
+        if R_bar.shape != (m, 2, 2) or S_bar.shape != (m, 2, 2):
+            raise ValueError(f"targets (R_bar, S_bar) must both have shape ({m}, 2, 2), "
+                             f"got {R_bar.shape} and {S_bar.shape}")
+        if not np.allclose(np.swapaxes(R_bar, 1, 2) @ R_bar, np.eye(2), atol=1e-9) or np.any(
+                np.linalg.det(R_bar) < 0):
+            raise ValueError("R_bar must hold rotations (orthogonal, determinant +1)")
+        if not np.allclose(S_bar, np.swapaxes(S_bar, 1, 2), atol=1e-12):
+            raise ValueError("S_bar must hold symmetric matrices")
+    else:
+        params = np.asarray(targets, dtype=np.float64)
+        if params.shape != (m, 4):
+            raise ValueError(f"targets must be params of shape ({m}, 4) (alpha, lambda1, lambda2, beta) or a "
+                             f"pair (R_bar, S_bar) of (m, 2, 2) arrays, got shape {params.shape}")
+        R_bar, S_bar = jacobian(params)
+    if not (np.all(np.isfinite(R_bar)) and np.all(np.isfinite(S_bar))):
+        raise ValueError("targets hold NaN or infinite values")
+    det = S_bar[:, 0, 0] * S_bar[:, 1, 1] - S_bar[:, 0, 1] ** 2
+    if np.any(det <= 0) or np.any(S_bar[:, 0, 0] <= 0):
+        raise ValueError("S_bar must be positive definite (lambda1, lambda2 > 0)")
+    return R_bar, S_bar
+
+
+def _parse_weights(w, m, name):
+    w = np.asarray(w, dtype=np.float64)
+    if w.shape != (m,):
+        raise ValueError(f"{name} must have shape ({m},), got {w.shape}")
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError(f"{name} must be finite and non-negative")
+    return w
+
+
+@dataclass(eq=False)
+class _Problem:
+    """Constant data of one solve: geometry of the input triangles and the fixed Hessian pattern."""
+
+    corner_vertex: np.ndarray  # (m, 3)
+    gradient: np.ndarray  # (m, 3, 2): J = X^T gradient for corner positions X (3, 2)
+    weight: np.ndarray  # (m,) area weights, 0 for degenerate
+    valid: np.ndarray  # (m,) non-degenerate
+    threshold: np.ndarray  # (m,) barrier threshold s_i
+    n_vertices: int
+    free_index: np.ndarray  # (2k,) reduced index of each DOF, -1 if fixed
+    n_free: int
+    block_rows: np.ndarray = field(default=None)  # (m, 6) reduced DOF of local (a, j), -1 if fixed
+    pattern: object = None  # dict with CSC structure and value map
+    permutation: np.ndarray = None
+
+    def jacobians(self, vertex_uv):
+        X = vertex_uv[self.corner_vertex]  # (m, 3, 2)
+        return np.swapaxes(X, 1, 2) @ self.gradient
+
+
+def _prepare(topology, uv, S_bar, *, degenerate_tol, barrier_threshold):
+    m = uv.shape[0]
+    edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=2)  # columns e1, e2
+    det = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
+    longest2 = np.max(np.stack([_frob2(uv[:, 1] - uv[:, 0]), _frob2(uv[:, 2] - uv[:, 1]),
+                                _frob2(uv[:, 0] - uv[:, 2])]), axis=0)
+    valid = np.abs(det) > degenerate_tol * longest2
+    if not valid.any():
+        raise ValueError("every input UV triangle is degenerate (zero area); nothing to fit")
+    inverse = np.zeros_like(edges)
+    e = edges[valid]
+    d = det[valid][:, None, None]
+    inverse[valid] = np.stack([np.stack([e[:, 1, 1], -e[:, 0, 1]], -1),
+                               np.stack([-e[:, 1, 0], e[:, 0, 0]], -1)], -2) / d
+    gradient = _GRAD[None] @ inverse
+    area = 0.5 * np.abs(det)
+    weight = np.where(valid, area / area[valid].mean(), 0.0)
+    target_det = S_bar[:, 0, 0] * S_bar[:, 1, 1] - S_bar[:, 0, 1] ** 2
+    threshold = barrier_threshold * np.minimum(1.0, target_det)
+
+    k = topology.n_vertices
+    fixed = np.zeros(k, dtype=bool)
+    _, first_vertex = np.unique(topology.vertex_chart, return_index=True)
+    fixed[first_vertex] = True
+    fixed_dof = np.concatenate([fixed, fixed])
+    free_index = np.full(2 * k, -1, dtype=np.int64)
+    free_index[~fixed_dof] = np.arange(int((~fixed_dof).sum()))
+    cv = topology.corner_vertex
+    block_rows = free_index[np.concatenate([cv, cv + k], axis=1)]  # local order (u0,u1,u2,v0,v1,v2)
+    return _Problem(corner_vertex=cv, gradient=gradient, weight=weight, valid=valid, threshold=threshold,
+                    n_vertices=k, free_index=free_index, n_free=int((~fixed_dof).sum()), block_rows=block_rows)
+
+
+def _build_pattern(problem, permutation=None):
+    """CSC structure of the reduced Hessian and the map from per-triangle 6x6 entries to CSC values."""
+    n = problem.n_free
+    rows = np.repeat(problem.block_rows[:, :, None], 6, axis=2)  # (m, 6, 6): [t, i, j] -> row of i
+    cols = np.repeat(problem.block_rows[:, None, :], 6, axis=1)
+    keep = (rows >= 0) & (cols >= 0)
+    r = rows[keep]
+    c = cols[keep]
+    if permutation is not None:
+        inverse = np.empty(n, dtype=np.int64)
+        inverse[permutation] = np.arange(n)
+        r, c = inverse[r], inverse[c]
+    diagonal = np.arange(n)
+    key = np.concatenate([c * n + r, diagonal * n + diagonal])
+    unique, entry = np.unique(key, return_inverse=True)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(indptr, unique // n + 1, 1)
+    return {"keep": keep, "entry": entry, "nnz": unique.size, "indices": unique % n,
+            "indptr": np.cumsum(indptr), "n": n, "n_block_entries": int(keep.sum())}
+
+
+def _assemble(problem, blocks, shift):
+    pattern = problem.pattern
+    values = np.concatenate([blocks[pattern["keep"]], np.full(pattern["n"], shift)])
+    data = np.bincount(pattern["entry"], weights=values, minlength=pattern["nnz"])
+    return sp.csc_matrix((data, pattern["indices"], pattern["indptr"]), shape=(pattern["n"], pattern["n"]))
+
+
+def _factor(problem, H):
+    options = {"SymmetricMode": True}
+    if problem.permutation is None:
+        lu = sla.splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=options)
+        # perm_c[i] is the position of column i in the factor; we store the order (new -> old).
+        problem.permutation = np.argsort(lu.perm_c)
+        problem.pattern = _build_pattern(problem, problem.permutation)
+        return lambda b: lu.solve(b)
+    lu = sla.splu(H, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=options)
+    perm = problem.permutation
+    return lambda b: _solve_permuted(lu, perm, b)
+
+
+def _solve_permuted(lu, perm, b):
+    x = np.empty_like(b)
+    x[perm] = lu.solve(b[perm])
+    return x
+
+
+class _Objective:
+    """Eq. 27 (plus the constant fit part) as a function of the chart-vertex UVs."""
+
+    def __init__(self, problem, target, quad_weight, w_b, constant):
+        self.problem = problem
+        self.target = target  # (m, 2, 2): R S (or R_k R_bar S_bar for "common")
+        self.quad_weight = quad_weight  # w_rs (or 1 for "common")
+        self.w_b = w_b
+        self.constant = constant  # area-weighted fit energy of the current local variables
+
+    def parts(self, J):
+        p = self.problem
+        quad = p.weight * _frob2(J - self.target)
+        det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+        b, _, _ = barrier(np.where(p.valid, det, 1.0), np.where(p.valid, p.threshold, 0.5))
+        return quad.sum(), (p.weight * b).sum()
+
+    def value(self, J):
+        quad, bar = self.parts(J)
+        return self.constant + self.quad_weight * quad + self.w_b * bar
+
+    def gradient_and_blocks(self, J):
+        """Reduced gradient (n_free,) and per-triangle PSD Hessian blocks (m, 6, 6) in local DOF order."""
+        p = self.problem
+        m = J.shape[0]
+        a = p.weight
+        det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+        _, db, ddb = barrier(np.where(p.valid, det, 1.0), np.where(p.valid, p.threshold, 0.5))
+        cof = np.stack([J[:, 1, 1], -J[:, 1, 0], -J[:, 0, 1], J[:, 0, 0]], axis=1)  # d det / d vec(J)
+        grad_J = 2.0 * self.quad_weight * a[:, None] * (J - self.target).reshape(m, 4) \
+            + (self.w_b * a * db)[:, None] * cof
+        # D maps local DOFs (u0,u1,u2,v0,v1,v2) to vec(J) = (J00, J01, J10, J11).
+        D = np.zeros((m, 4, 6))
+        Gt = np.swapaxes(p.gradient, 1, 2)
+        D[:, 0:2, 0:3] = Gt
+        D[:, 2:4, 3:6] = Gt
+        grad_local = np.einsum("tij,ti->tj", D, grad_J)
+        H_J = np.zeros((m, 4, 4))
+        H_J[:] = np.eye(4) * (2.0 * self.quad_weight * a)[:, None, None]
+        active = db != 0
+        if active.any():
+            c = cof[active]
+            hb = (ddb[active][:, None, None] * c[:, :, None] * c[:, None, :]
+                  + db[active][:, None, None] * _DET_HESSIAN[None])
+            hb *= (self.w_b * a[active])[:, None, None]
+            eigval, eigvec = np.linalg.eigh(hb)
+            hb = (eigvec * np.maximum(eigval, 0.0)[:, None, :]) @ np.swapaxes(eigvec, 1, 2)
+            H_J[active] += hb
+        blocks = np.swapaxes(D, 1, 2) @ H_J @ D
+        grad = np.zeros(p.n_free + 1)
+        np.add.at(grad, np.where(p.block_rows >= 0, p.block_rows, p.n_free).ravel(), grad_local.ravel())
+        return grad[:-1], blocks, bool(active.any())
+
+    def max_step(self, vertex_uv, direction):
+        """Largest t in (0, inf] such that det J(x + t d) > 0 on (0, t) for every valid triangle."""
+        p = self.problem
+        J0 = p.jacobians(vertex_uv)[p.valid]
+        dJ = p.jacobians(direction)[p.valid]
+        c0 = J0[:, 0, 0] * J0[:, 1, 1] - J0[:, 0, 1] * J0[:, 1, 0]
+        c1 = J0[:, 0, 0] * dJ[:, 1, 1] + dJ[:, 0, 0] * J0[:, 1, 1] - J0[:, 0, 1] * dJ[:, 1, 0] \
+            - dJ[:, 0, 1] * J0[:, 1, 0]
+        c2 = dJ[:, 0, 0] * dJ[:, 1, 1] - dJ[:, 0, 1] * dJ[:, 1, 0]
+        return _smallest_positive_root(c2, c1, c0)
+
+
+def _smallest_positive_root(a, b, c):
+    """min over rows of the smallest t > 0 with a t^2 + b t + c = 0 (inf if none); assumes c > 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        roots = np.full((a.size, 2), np.inf)
+        linear = np.abs(a) <= 1e-300
+        t_lin = -c / b
+        roots[linear, 0] = np.where(t_lin[linear] > 0, t_lin[linear], np.inf)
+        quad = ~linear
+        disc = b * b - 4 * a * c
+        real = quad & (disc >= 0)
+        sq = np.sqrt(np.where(real, disc, 0.0))
+        # Numerically stable pair: q = -(b + sign(b) sqrt(disc)) / 2, roots q/a and c/q.
+        q = -0.5 * (b + np.copysign(sq, b))
+        r1 = q / a
+        r2 = c / q
+        for col, r in enumerate((r1, r2)):
+            ok = real & (r > 0) & np.isfinite(r)
+            roots[ok, col] = r[ok]
+    return float(roots.min()) if roots.size else np.inf
+
+
+def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", formulation="perceptual",
+                        w_rs=1e-5, barrier_weight=1.0, barrier_threshold=0.5, max_iterations=100, tol=1e-7,
+                        newton_iterations=1, degenerate_tol=1e-10, topology=None):
+    """Generator form of :func:`solve_meshwise`: yields ``(done, total)`` after every iteration.
+
+    The result comes back as the generator's return value, so a pipeline generator writes
+    ``result = yield from iter_solve_meshwise(...)``; parameters are those of :func:`solve_meshwise`.
+    """
+    F, uv = validate_faces_and_uv(F, uv)
+    m = F.shape[0]
+    R_bar, S_bar = _parse_targets(targets, m)
+    if weights == "perceptual":
+        if formulation == "perceptual" and (w_R is None or w_S is None):
+            raise ValueError("weights='perceptual' needs w_R and w_S (Eq. 17); use weights='identity' without them")
+        w_R = _parse_weights(w_R, m, "w_R") if w_R is not None else np.ones(m)
+        w_S = _parse_weights(w_S, m, "w_S") if w_S is not None else np.ones(m)
+    elif weights == "identity":
+        w_R = np.ones(m)
+        w_S = np.ones(m)
+    else:
+        raise ValueError(f"weights must be 'perceptual' or 'identity', got {weights!r}")
+    if formulation not in ("perceptual", "common"):
+        raise ValueError(f"formulation must be 'perceptual' or 'common', got {formulation!r}")
+    for name, value in (("w_rs", w_rs), ("barrier_weight", barrier_weight)):
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be positive and finite, got {value}")
+    if not 0 < barrier_threshold <= 1:
+        raise ValueError(f"barrier_threshold must be in (0, 1], got {barrier_threshold}")
+    if int(max_iterations) < 1 or int(newton_iterations) < 1:
+        raise ValueError("max_iterations and newton_iterations must be at least 1")
+    if not tol >= 0:
+        raise ValueError(f"tol must be non-negative, got {tol}")
+    if topology is None:
+        topology = uv_topology(F, uv)
+    elif topology.corner_vertex.shape != (m, 3):
+        raise ValueError("topology does not belong to these faces")
+
+    problem = _prepare(topology, uv, S_bar, degenerate_tol=degenerate_tol, barrier_threshold=barrier_threshold)
+    valid = problem.valid
+    common = formulation == "common"
+    quad_weight = 1.0 if common else float(w_rs)
+    w_b = quad_weight * float(barrier_weight)
+    x = topology.vertex_uv.copy()
+    J = problem.jacobians(x)
+    R = np.tile(np.eye(2), (m, 1, 1))
+    S = R.copy()
+    k = np.zeros(m, dtype=np.int64)
+    a = problem.weight
+
+    def local_energy(J_, k_, R_, S_):
+        turned = rotation(k_ * np.pi / 2) @ R_bar
+        return w_R * _frob2(R_ - turned) + w_S * _frob2(S_ - S_bar) + w_rs * _frob2(J_ - R_ @ S_)
+
+    def objective_of(J_, k_, R_, S_):
+        if common:
+            target = rotation(k_ * np.pi / 2) @ R_bar @ S_bar
+            return _Objective(problem, target, 1.0, w_b, 0.0)
+        fit = w_R * _frob2(R_ - rotation(k_ * np.pi / 2) @ R_bar) + w_S * _frob2(S_ - S_bar)
+        return _Objective(problem, R_ @ S_, float(w_rs), w_b, float((a * fit).sum()))
+
+    history = [objective_of(J, k, R, S).value(J)]
+    scale = max(history[0], np.finfo(float).tiny)
+    solve_quadratic = None  # cached factorization of the barrier-free Hessian
+    quadratic_key = None
+    shift = None
+    converged = False
+    iteration = 0
+    for iteration in range(1, int(max_iterations) + 1):
+        # Local step.
+        if common:
+            _, k_new = fit_energy(J, R_bar, S_bar, w_R, w_S, formulation="common")
+            k = k_new
+        else:
+            k_new, R_new, S_new, e_new = local_step(J, R_bar, S_bar, w_R, w_S, float(w_rs), S)
+            keep = local_energy(J, k, R, S) <= e_new
+            k = np.where(keep, k, k_new)
+            R = np.where(keep[:, None, None], R, R_new)
+            S = np.where(keep[:, None, None], S, S_new)
+        objective = objective_of(J, k, R, S)
+        current = objective.value(J)
+
+        # Global step: damped Newton on Eq. 27.
+        for _ in range(int(newton_iterations)):
+            grad, blocks, barrier_active = objective.gradient_and_blocks(J)
+            if problem.pattern is None:
+                problem.pattern = _build_pattern(problem)
+            if shift is None:
+                diagonal = np.einsum("tii->t", blocks).sum() / max(problem.n_free, 1)
+                shift = 1e-12 * diagonal
+            if barrier_active:
+                solve = _factor(problem, _assemble(problem, blocks, shift))
+            else:
+                key = (quad_weight,)
+                if solve_quadratic is None or quadratic_key != key:
+                    solve_quadratic = _factor(problem, _assemble(problem, blocks, shift))
+                    quadratic_key = key
+                solve = solve_quadratic
+            step = -solve(grad)
+            slope = float(grad @ step)
+            if not slope < 0:
+                break
+            direction = np.zeros(2 * problem.n_vertices)
+            direction[problem.free_index >= 0] = step[problem.free_index[problem.free_index >= 0]]
+            direction = direction.reshape(2, -1).T
+            t = min(1.0, 0.9 * objective.max_step(x, direction))
+            accepted = False
+            for _ in range(40):
+                x_trial = x + t * direction
+                J_trial = problem.jacobians(x_trial)
+                trial = objective.value(J_trial)
+                if trial <= current + 1e-4 * t * slope:
+                    accepted = True
+                    break
+                t *= 0.5
+            if not accepted:
+                break
+            x, J, current = x_trial, J_trial, trial
+
+        history.append(current)
+        quad, bar = objective.parts(J)
+        if w_b * bar > quad_weight * quad:
+            w_b /= 20.0
+            history[-1] = objective_of(J, k, R, S).value(J)
+        yield iteration, int(max_iterations)
+        if history[-2] - history[-1] <= tol * max(history[-1], 1e-9 * scale):
+            converged = True
+            break
+
+    final_fit, k_final = fit_energy(J, R_bar, S_bar, w_R, w_S, formulation=formulation)
+    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+    return MeshwiseResult(
+        uv=topology.corner_uv(x),
+        vertex_uv=x,
+        topology=topology,
+        iterations=iteration,
+        energy_history=np.asarray(history),
+        fit_energy=float((a * final_fit)[valid].sum()),
+        quarter_turns=k if not common else k_final,
+        flipped=int(np.sum(valid & ~(det > 0))),
+        degenerate=int(np.sum(~valid)),
+        barrier_weight=float(w_b),
+        converged=converged,
+    )
+
+
+def solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", formulation="perceptual",
+                   w_rs=1e-5, barrier_weight=1.0, barrier_threshold=0.5, max_iterations=100, tol=1e-7,
+                   newton_iterations=1, degenerate_tol=1e-10, topology=None, progress=None):
+    """Fit one flip-free UV map with the input's charts to per-triangle optimal Jacobians (Eq. 19).
+
+    Parameters
+    ----------
+    F : (m, 3) array_like of int
+        Triangles (3D vertex indices).
+    uv : (m, 3, 2) array_like of float
+        Input UVs per face corner; the map phi starts as the identity on them.
+    targets : (m, 4) array_like, or pair of (m, 2, 2) array_like
+        Per-triangle optimum, either as ``(alpha, lambda1, lambda2, beta)`` rows (Eq. 13-14) or as
+        ``(R_bar, S_bar)``; ``R_bar S_bar`` maps input-UV edge vectors to new ones.
+    w_R, w_S : (m,) array_like of float, optional
+        Non-negative rotation and stretch weights of Eq. 17 (needed for ``weights="perceptual"``).
+    weights : {"perceptual", "identity"}
+        ``"identity"`` sets ``w_R = w_S = 1`` (the "Identity" ablation of Fig. 17).
+    formulation : {"perceptual", "common"}
+        ``"common"`` minimizes Eq. 15, ``min_k |J - R(k pi/2) R_bar S_bar|^2`` (the "Common" ablation of
+        Fig. 17), with the same barrier and solver.
+    w_rs : float
+        Weight of ``|J - R S|^2`` (Eq. 19); the paper's 1e-5.
+    barrier_weight : float
+        Initial w_b as a multiple of the quadratic weight (w_rs, or 1 for "common"); Eq. 28 lowers it.
+    barrier_threshold : float in (0, 1]
+        Barrier threshold s_i as a fraction of ``min(1, det S_bar_i)``.
+    max_iterations : int
+        Local-global iterations at most.
+    tol : float
+        Stop when an iteration lowers the objective by at most ``tol`` times its current value (or times
+        1e-9 of its initial value once the objective is that small, e.g. when targets are met exactly).
+    newton_iterations : int
+        Damped Newton steps per global step.
+    degenerate_tol : float
+        An input triangle with ``|2 area| <= degenerate_tol * (longest edge)^2`` is degenerate (see Notes).
+    topology : UVTopology, optional
+        Precomputed :func:`~perceptual_uv.core.charts.uv_topology` of ``(F, uv)``.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after every iteration.
+
+    Returns
+    -------
+    MeshwiseResult
+
+    Notes
+    -----
+    Decisions not fixed by the paper are listed in this module's docstring: area weights by input-UV area,
+    exact block minimization in the local step (monotone objective), SKPS13 barrier with per-triangle
+    threshold, orientation kept per triangle (mirrored charts need no special case), degenerate input
+    triangles weighted 0, one fixed vertex per chart as the translation gauge.
+
+    References
+    ----------
+    Sun et al. 2022, Eq. 15-19, App. B Eq. 25-28; Schueller et al. 2013 (barrier, damped Newton);
+    Smith and Schaefer 2015 (largest step before a triangle inverts).
+    """
+    generator = iter_solve_meshwise(F, uv, targets, w_R, w_S, weights=weights, formulation=formulation,
+                                    w_rs=w_rs, barrier_weight=barrier_weight,
+                                    barrier_threshold=barrier_threshold, max_iterations=max_iterations, tol=tol,
+                                    newton_iterations=newton_iterations, degenerate_tol=degenerate_tol,
+                                    topology=topology)
+    while True:
+        try:
+            done, total = next(generator)
+        except StopIteration as finished:
+            return finished.value
+        if progress is not None:
+            progress(done, total)
