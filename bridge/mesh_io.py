@@ -138,7 +138,8 @@ def read_image(image):
     -------
     (h, w, c) float32 ndarray
         ``c = image.channels``; row 0 is the bottom of the image (v = 0). 8-bit images give their stored
-        byte values / 255 with no colour-space conversion.
+        byte values / 255 with no colour-space conversion; float images (EXR, 16-bit PNG) give the values
+        Blender holds, which it has already converted to linear for non-linear colour spaces.
 
     Raises
     ------
@@ -220,6 +221,8 @@ def load_textured_mesh(path, *, object_name=None, uv_name=None):
         objects = matches
     candidates = [obj for obj in objects if obj.type == "MESH" and _base_color_images(obj)]
     if not candidates:
+        if object_name is not None:
+            raise ValueError(f"'{object_name}' has no image texture feeding its material's base colour")
         raise ValueError(f"no mesh object in {path} has an image texture feeding its material's base colour")
     per_object = [(obj, read_mesh(obj, uv_name=uv_name)) for obj in candidates]
     triangles_per_image = {}

@@ -17,7 +17,7 @@ BOTTOM of the picture (like ``image.pixels`` and the project's textures). For an
 right vector ``R``, up vector ``U`` and scale ``s`` (the larger image side spans ``s`` world units), the
 centre of pixel (row ``i``, column ``j``) sees the world point
 ``position + R * s * ((j + 0.5) / W - 0.5) * W / max(W, H) + U * s * ((i + 0.5) / H - 0.5) * H / max(W, H)``.
-Alpha is 0 where no surface is visible (transparent film). Anti-aliasing is off by default, so each pixel
+Alpha is 0 where no surface is visible (transparent film); texture alpha is ignored (opaque surfaces). Anti-aliasing is off by default, so each pixel
 is one sample at its centre.
 """
 import contextlib
@@ -254,13 +254,16 @@ class WorkbenchRenderer:
         if isinstance(image, bpy.types.Image):
             key = image.name_full
             if key not in self._image_copies:
-                if image.source == "FILE" and not image.is_dirty:
-                    # a copy re-reads the file: stored bytes stay bytes, no float buffer of a large atlas
+                if (image.source == "FILE" and not image.is_dirty and not image.is_float
+                        and image.packed_file is None):
+                    # a copy re-reads the 8-bit file: bytes stay bytes, no float buffer for a large atlas
                     copy = image.copy()
                     self._created.append(copy)
                     copy.colorspace_settings.name = "Non-Color" if self.texture_values == "stored" else "sRGB"
+                    copy.alpha_mode = "NONE"
                 else:
-                    # a generated or edited image: copy() would regenerate it, so go through its pixels
+                    # generated, edited, packed or float images: copy() may regenerate or re-decode them, so
+                    # go through the pixels Blender holds (what mesh_io.read_image gives core)
                     copy = self._texture_image(read_image(image))
                 self._image_copies[key] = copy
             return self._image_copies[key]
@@ -275,8 +278,6 @@ class WorkbenchRenderer:
         height, width, channels = texture.shape
         rgba = np.ones((height, width, 4), dtype=np.float32)
         rgba[..., :3] = np.clip(texture[..., :3] if channels >= 3 else texture[..., :1], 0.0, 1.0)
-        if channels == 4:
-            rgba[..., 3] = np.clip(texture[..., 3], 0.0, 1.0)
         created = self._new(bpy.data.images, "perceptual_uv_texture", width, height, alpha=True,
                             float_buffer=True)
         if self.texture_values == "srgb":
@@ -285,6 +286,7 @@ class WorkbenchRenderer:
             created.colorspace_settings.name = "Linear Rec.709"
         else:
             created.colorspace_settings.name = "Non-Color"
+        created.alpha_mode = "NONE"
         created.pixels.foreach_set(rgba.ravel())
         created.update()
         return created
@@ -370,7 +372,8 @@ class WorkbenchRenderer:
         uv : (m, 3, 2) array_like of float
             Per-corner UVs.
         texture : bpy.types.Image or (h, w[, c]) array_like
-            An image (copied, never modified) or texture values in [0, 1], row 0 at the bottom.
+            An image (copied, never modified) or texture values in [0, 1], row 0 at the bottom; one channel
+            is grey, alpha is ignored.
 
         Returns
         -------

@@ -240,3 +240,16 @@ def test_gltf_texture_coordinates_are_flipped_to_blender(shared_models_dir, empt
     assert cKDTree(read).query(expected)[0].max() < 1e-6
     # and the unflipped coordinates are not what Blender holds
     assert cKDTree(stored).query(read)[0].max() > 0.1
+
+
+def test_object_without_base_colour_image_is_refused(empty_scene, tmp_path):
+    bpy.ops.mesh.primitive_cube_add()
+    bpy.context.active_object.name = "Plain"
+    path = tmp_path / "plain.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    with pytest.raises(ValueError, match="'Plain' has no image texture"):
+        mesh_io.load_textured_mesh(path, object_name="Plain")
+    with pytest.raises(ValueError, match="no object 'Missing'"):
+        mesh_io.load_textured_mesh(path, object_name="Missing")
+    with pytest.raises(ValueError, match="no mesh object in .* has an image texture"):
+        mesh_io.load_textured_mesh(path)

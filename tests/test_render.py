@@ -123,3 +123,27 @@ def test_invalid_arguments_raise_value_errors(empty_scene):
             renderer.add_arrays(SQUARE_V, SQUARE_F, SQUARE_UV[:1], np.zeros((2, 2)))
         with pytest.raises(ValueError, match="texture must have shape"):
             renderer.add_arrays(SQUARE_V, SQUARE_F, SQUARE_UV, np.zeros((2, 2, 2)))
+
+
+def test_float_and_packed_images_show_the_values_blender_holds(empty_scene, tmp_path):
+    """A float image goes through its pixels (as read_image gives them to core), a packed PNG too."""
+    texture = _bytes_texture(3)
+    u, v = _film_uv()
+    expected = _bilinear_by_hand(texture, u, v)
+    rgba = np.concatenate([texture, np.ones((4, 4, 1))], axis=2).astype(np.float32).ravel()
+    float_image = bpy.data.images.new("float_user", 4, 4, alpha=True, float_buffer=True)
+    float_image.pixels.foreach_set(rgba)
+    byte_image = bpy.data.images.new("byte_user", 4, 4, alpha=True)
+    byte_image.pixels.foreach_set(rgba)
+    byte_image.filepath_raw = str(tmp_path / "texture.png")
+    byte_image.file_format = "PNG"
+    byte_image.save()
+    packed = bpy.data.images.load(str(tmp_path / "texture.png"))
+    packed.pack()
+    with WorkbenchRenderer(width=FILM) as renderer:
+        for image in (float_image, packed):
+            proxy = renderer.add_arrays(SQUARE_V, SQUARE_F, SQUARE_UV, image)
+            rendered = renderer.render(TOP_VIEW)[..., :3]
+            proxy.hide_render = True
+            assert np.abs(rendered - expected).max() < 0.5 / 255, image.name
+    assert float_image.colorspace_settings.name == "Linear Rec.709" and packed.colorspace_settings.name == "sRGB"
