@@ -62,6 +62,9 @@ def import_model(path):
 def _mesh_of(obj):
     if obj is None or obj.type != "MESH":
         raise ValueError(f"'{getattr(obj, 'name', obj)}' is not a mesh object")
+    if obj.mode == "EDIT":
+        # in Edit Mode the mesh data is stale and anything written to it is lost when the mode is left
+        raise ValueError(f"'{obj.name}' is in Edit Mode; switch to Object Mode first")
     return obj.data
 
 

@@ -253,3 +253,14 @@ def test_object_without_base_colour_image_is_refused(empty_scene, tmp_path):
         mesh_io.load_textured_mesh(path, object_name="Missing")
     with pytest.raises(ValueError, match="no mesh object in .* has an image texture"):
         mesh_io.load_textured_mesh(path)
+
+
+def test_edit_mode_is_refused(spot):
+    bpy.context.view_layer.objects.active = spot
+    bpy.ops.object.mode_set(mode="EDIT")
+    try:
+        with pytest.raises(ValueError, match="Edit Mode"):
+            mesh_io.read_mesh(spot)
+    finally:
+        bpy.ops.object.mode_set(mode="OBJECT")
+    assert mesh_io.read_mesh(spot).n_faces == 5856
