@@ -147,3 +147,28 @@ def test_float_and_packed_images_show_the_values_blender_holds(empty_scene, tmp_
             proxy.hide_render = True
             assert np.abs(rendered - expected).max() < 0.5 / 255, image.name
     assert float_image.colorspace_settings.name == "Linear Rec.709" and packed.colorspace_settings.name == "sRGB"
+
+
+def test_perspective_and_wide_film_follow_the_documented_geometry(empty_scene):
+    texture = _bytes_texture(4)
+    u, v = _film_uv()
+    # a pinhole 5 units above the square with the square exactly filling the field of view: a plane seen
+    # head-on is a scaled copy, so the picture equals the orthographic one
+    fov = np.degrees(2 * np.arctan(0.5 / 5.0))
+    pinhole = Camera(position=(0.5, 0.5, 5.0), look_at=(0.5, 0.5, 0.0), up=(0.0, 1.0, 0.0), fov_degrees=fov)
+    with WorkbenchRenderer(width=FILM) as renderer:
+        renderer.add_arrays(SQUARE_V, SQUARE_F, SQUARE_UV, texture)
+        perspective = renderer.render(pinhole)
+    assert np.abs(perspective[..., :3] - _bilinear_by_hand(texture, u, v)).max() < 1.0 / 255
+    # a 2:1 film: the larger side (width) spans ortho_scale = 2 units, so the unit square covers the middle
+    # half of the columns and every row
+    wide = Camera(position=(0.5, 0.5, 5.0), look_at=(0.5, 0.5, 0.0), up=(0.0, 1.0, 0.0), ortho_scale=2.0)
+    with WorkbenchRenderer(width=2 * FILM, height=FILM) as renderer:
+        renderer.add_arrays(SQUARE_V, SQUARE_F, SQUARE_UV, texture)
+        rendered = renderer.render(wide)
+    assert rendered.shape == (FILM, 2 * FILM, 4)
+    covered = rendered[..., 3] > 0.5
+    assert covered[:, FILM // 2:3 * FILM // 2].all() and not covered[:, :FILM // 2].any()
+    assert not covered[:, 3 * FILM // 2:].any()
+    np.testing.assert_allclose(rendered[:, FILM // 2:3 * FILM // 2, :3], _bilinear_by_hand(texture, u, v),
+                               atol=0.5 / 255)
