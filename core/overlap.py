@@ -1,0 +1,252 @@
+"""Overlapping triangles in UV space: pairs of UV triangles whose interiors intersect.
+
+The mesh-wise stage is locally injective, not bijective (Sun et al. 2022, Sec. 4.2, "Bijectivity"), so a
+chart can fold over itself or onto another chart; packing cannot fix the first kind. Two triangles overlap
+when their open interiors intersect: triangles that only touch (a shared edge or vertex, neighbours in a
+chart, or islands that abut) do not, and zero-area triangles never overlap anything. UVs are taken as they
+are (no wrapping of coordinates outside [0, 1]).
+
+Candidates come from a uniform grid over the triangles' bounding boxes (each pair is tested once, in the
+first grid cell both boxes cover), so the cost grows with the number of nearby pairs, not with m^2. The
+exact test is the separating-axis test for two triangles written with orientation predicates, so a vertex
+shared by both triangles contributes an exact zero.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._jit import njit
+
+__all__ = ["OverlapCount", "overlapping_pairs", "count_overlaps", "triangles_overlap"]
+
+
+@njit
+def _orient(ax, ay, bx, by, cx, cy):
+    return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+
+
+@njit
+def _separated_by_edges_of(P, Q):
+    # Q lies in the closed outer half-plane of some edge line of P (P oriented counter-clockwise).
+    for e in range(3):
+        a = P[e]
+        b = P[(e + 1) % 3]
+        outside = True
+        for v in range(3):
+            if _orient(a[0], a[1], b[0], b[1], Q[v, 0], Q[v, 1]) > 0.0:
+                outside = False
+                break
+        if outside:
+            return True
+    return False
+
+
+@njit
+def _ccw(T):
+    if _orient(T[0, 0], T[0, 1], T[1, 0], T[1, 1], T[2, 0], T[2, 1]) < 0.0:
+        out = np.empty((3, 2))
+        out[0] = T[0]
+        out[1] = T[2]
+        out[2] = T[1]
+        return out
+    return T
+
+
+@njit
+def _interiors_overlap(P, Q):
+    if _orient(P[0, 0], P[0, 1], P[1, 0], P[1, 1], P[2, 0], P[2, 1]) == 0.0:
+        return False
+    if _orient(Q[0, 0], Q[0, 1], Q[1, 0], Q[1, 1], Q[2, 0], Q[2, 1]) == 0.0:
+        return False
+    P = _ccw(P)
+    Q = _ccw(Q)
+    return not (_separated_by_edges_of(P, Q) or _separated_by_edges_of(Q, P))
+
+
+def triangles_overlap(P, Q):
+    """Whether the interiors of two 2-D triangles intersect.
+
+    Parameters
+    ----------
+    P, Q : (3, 2) array_like of float
+        Triangle corners, either orientation.
+
+    Returns
+    -------
+    bool
+        False for triangles that only touch and for zero-area triangles.
+    """
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    Q = np.ascontiguousarray(Q, dtype=np.float64)
+    if P.shape != (3, 2) or Q.shape != (3, 2):
+        raise ValueError(f"triangles must have shape (3, 2), got {P.shape} and {Q.shape}")
+    return bool(_interiors_overlap(P, Q))
+
+
+@njit
+def _grid_pairs(uv, lo, hi, origin, cell, nx, ny):
+    m = uv.shape[0]
+    ix0 = np.empty(m, np.int64)
+    ix1 = np.empty(m, np.int64)
+    iy0 = np.empty(m, np.int64)
+    iy1 = np.empty(m, np.int64)
+    count = np.zeros(nx * ny + 1, np.int64)
+    for t in range(m):
+        ix0[t] = min(nx - 1, int((lo[t, 0] - origin[0]) / cell))
+        ix1[t] = min(nx - 1, int((hi[t, 0] - origin[0]) / cell))
+        iy0[t] = min(ny - 1, int((lo[t, 1] - origin[1]) / cell))
+        iy1[t] = min(ny - 1, int((hi[t, 1] - origin[1]) / cell))
+        for gx in range(ix0[t], ix1[t] + 1):
+            for gy in range(iy0[t], iy1[t] + 1):
+                count[gx * ny + gy + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    members = np.empty(start[-1], np.int64)
+    for t in range(m):
+        for gx in range(ix0[t], ix1[t] + 1):
+            for gy in range(iy0[t], iy1[t] + 1):
+                c = gx * ny + gy
+                members[fill[c]] = t
+                fill[c] += 1
+    pairs = np.empty((16, 2), np.int64)
+    n_pairs = 0
+    for gx in range(nx):
+        for gy in range(ny):
+            c = gx * ny + gy
+            for a in range(start[c], start[c + 1]):
+                i = members[a]
+                for b in range(a + 1, start[c + 1]):
+                    j = members[b]
+                    # Interiors can only meet where the boxes overlap with positive area.
+                    if lo[i, 0] >= hi[j, 0] or lo[j, 0] >= hi[i, 0] or lo[i, 1] >= hi[j, 1] or lo[j, 1] >= hi[i, 1]:
+                        continue
+                    # Test each pair once: in the first cell both boxes cover.
+                    if gx != max(ix0[i], ix0[j]) or gy != max(iy0[i], iy0[j]):
+                        continue
+                    if _interiors_overlap(uv[i], uv[j]):
+                        if n_pairs == pairs.shape[0]:
+                            grown = np.empty((2 * n_pairs, 2), np.int64)
+                            grown[:n_pairs] = pairs
+                            pairs = grown
+                        pairs[n_pairs, 0] = min(i, j)
+                        pairs[n_pairs, 1] = max(i, j)
+                        n_pairs += 1
+    return pairs[:n_pairs]
+
+
+def _validate_uv(uv):
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
+    if uv.ndim != 3 or uv.shape[1:] != (3, 2):
+        raise ValueError(f"uv must have shape (m, 3, 2), got {uv.shape}")
+    if not np.all(np.isfinite(uv)):
+        raise ValueError("uv holds NaN or infinite coordinates")
+    return uv
+
+
+def overlapping_pairs(uv):
+    """All pairs of UV triangles whose interiors intersect.
+
+    Parameters
+    ----------
+    uv : (m, 3, 2) array_like of float
+        UV coordinates per face corner.
+
+    Returns
+    -------
+    (p, 2) int64 ndarray
+        Pairs ``(i, j)`` with ``i < j``, sorted lexicographically.
+
+    Notes
+    -----
+    Grid cells have the side of the mean bounding-box extent, enlarged when needed so that there are at most
+    about 4 m cells; a triangle is listed in every cell its box covers.
+    """
+    uv = _validate_uv(uv)
+    m = uv.shape[0]
+    if m < 2:
+        return np.empty((0, 2), dtype=np.int64)
+    lo = uv.min(axis=1)
+    hi = uv.max(axis=1)
+    origin = lo.min(axis=0)
+    span = np.maximum(hi.max(axis=0) - origin, 1e-300)
+    cell = max(float(np.mean(np.max(hi - lo, axis=1))), float(np.sqrt(span[0] * span[1] / (4.0 * m))), 1e-300)
+    nx, ny = (int(n) for n in np.minimum(np.floor(span / cell) + 1, 4 * m))
+    pairs = _grid_pairs(uv, lo, hi, origin, cell, nx, ny)
+    if pairs.shape[0] == 0:
+        return pairs
+    order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    return pairs[order]
+
+
+def overlapping_pairs_reference(uv):
+    """Plain numpy O(m^2) reference of :func:`overlapping_pairs` (for tests on small inputs)."""
+    uv = _validate_uv(uv)
+    m = uv.shape[0]
+    area2 = ((uv[:, 1, 0] - uv[:, 0, 0]) * (uv[:, 2, 1] - uv[:, 0, 1])
+             - (uv[:, 1, 1] - uv[:, 0, 1]) * (uv[:, 2, 0] - uv[:, 0, 0]))
+    ccw = np.where((area2 < 0)[:, None, None], uv[:, [0, 2, 1]], uv)
+    i, j = np.triu_indices(m, k=1)
+
+    def separated(P, Q):
+        out = np.zeros(P.shape[0], dtype=bool)
+        for e in range(3):
+            a, b = P[:, e], P[:, (e + 1) % 3]
+            side = ((b[:, None, 0] - a[:, None, 0]) * (Q[:, :, 1] - a[:, None, 1])
+                    - (b[:, None, 1] - a[:, None, 1]) * (Q[:, :, 0] - a[:, None, 0]))
+            out |= np.all(side <= 0, axis=1)
+        return out
+
+    hit = (area2[i] != 0) & (area2[j] != 0) & ~separated(ccw[i], ccw[j]) & ~separated(ccw[j], ccw[i])
+    return np.stack([i[hit], j[hit]], axis=1).astype(np.int64)
+
+
+
+@dataclass(frozen=True, eq=False)
+class OverlapCount:
+    """Overlapping UV triangle pairs, split by chart.
+
+    Attributes
+    ----------
+    pairs : (p, 2) int64 ndarray
+        As returned by :func:`overlapping_pairs`.
+    total : int
+    within_charts : int
+        Pairs whose triangles are in the same chart (folds; packing cannot remove them).
+    between_charts : int
+        Pairs from different charts.
+    triangles : int
+        Triangles in at least one overlapping pair.
+    """
+
+    pairs: np.ndarray
+    total: int
+    within_charts: int
+    between_charts: int
+    triangles: int
+
+
+def count_overlaps(uv, face_chart=None):
+    """Count overlapping UV triangle pairs, within and between charts.
+
+    Parameters
+    ----------
+    uv : (m, 3, 2) array_like of float
+        UV coordinates per face corner.
+    face_chart : (m,) array_like of int, optional
+        Chart of every face (e.g. ``uv_topology(F, uv).face_chart``); without it every pair counts as
+        ``within_charts``.
+
+    Returns
+    -------
+    OverlapCount
+    """
+    pairs = overlapping_pairs(uv)
+    m = np.asarray(uv).shape[0]
+    if face_chart is None:
+        face_chart = np.zeros(m, dtype=np.int64)
+    face_chart = np.asarray(face_chart)
+    if face_chart.shape != (m,):
+        raise ValueError(f"face_chart must have shape ({m},), got {face_chart.shape}")
+    same = face_chart[pairs[:, 0]] == face_chart[pairs[:, 1]]
+    return OverlapCount(pairs=pairs, total=int(pairs.shape[0]), within_charts=int(same.sum()),
+                        between_charts=int((~same).sum()), triangles=int(np.unique(pairs).size))

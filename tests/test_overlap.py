@@ -1,0 +1,84 @@
+import numpy as np
+import pytest
+
+from perceptual_uv.core.overlap import count_overlaps, overlapping_pairs, overlapping_pairs_reference, triangles_overlap
+
+UNIT = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]
+
+
+@pytest.mark.parametrize(
+    "other, expected",
+    [
+        ([[2.0, 0], [3, 0], [2, 1]], False),  # far apart
+        ([[1.0, 0], [1, 1], [0, 1]], False),  # shares the hypotenuse, other side
+        ([[1.0, 0], [2, 0], [1, 1]], False),  # touches at one vertex
+        ([[0.5, 0.5], [1.5, 0.5], [0.5, 1.5]], False),  # touches the hypotenuse at its midpoint
+        ([[0.2, 0.2], [0.4, 0.2], [0.2, 0.4]], True),  # strictly inside
+        ([[0.0, 0], [0, 1], [1, 0]], True),  # the same triangle, opposite orientation
+        ([[1.0, 0], [0, 1], [0.1, 0.1]], True),  # shares the hypotenuse, folded onto the same side
+        ([[0.5, -0.2], [0.7, 1.0], [-0.3, 0.6]], True),  # edges cross, no vertex inside the other
+        ([[0.6, 0.6], [2, 0.6], [0.6, 2]], False),  # boxes overlap, separated by the hypotenuse
+        ([[0.2, 0.2], [0.4, 0.4], [0.6, 0.6]], False),  # zero area
+    ],
+)
+def test_hand_made_pairs(other, expected):
+    assert triangles_overlap(UNIT, other) is expected
+    assert triangles_overlap(other, UNIT) is expected
+
+
+def test_star_of_david_overlaps_without_contained_vertices():
+    up = [[0.0, 1.0], [-0.866, -0.5], [0.866, -0.5]]
+    down = [[0.0, -1.0], [0.866, 0.5], [-0.866, 0.5]]
+    assert triangles_overlap(up, down)
+
+
+def _grid_mesh(n):
+    # n x n squares, two triangles each; neighbours share edges exactly.
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float), indexing="ij")
+    p = np.stack([x.ravel(), y.ravel()], axis=1)
+    a = p
+    b = p + [1, 0]
+    c = p + [1, 1]
+    d = p + [0, 1]
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def test_tiling_has_no_overlaps_and_one_moved_triangle_is_found():
+    uv = _grid_mesh(60)  # 7200 triangles, all sharing edges and vertices
+    assert overlapping_pairs(uv).shape == (0, 2)
+    uv = uv.copy()
+    # Square (0, 0) is triangles 0 and 3600; drop a small copy of the first into square (10, 10) = index 610.
+    uv[0] = [[10.2, 10.05], [10.9, 10.05], [10.9, 10.75]]
+    pairs = overlapping_pairs(uv)
+    # It lies inside the lower triangle of square (10, 10) (index 610) and clear of the upper one (4210).
+    np.testing.assert_array_equal(pairs, [[0, 610]])
+
+
+def test_grid_matches_brute_force_reference_on_random_triangles():
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(0, 10, size=(400, 1, 2))
+    uv = centres + rng.normal(scale=0.4, size=(400, 3, 2))
+    uv[:20] = uv[20:40][:, [0, 2, 1]]  # exact duplicates with flipped orientation
+    uv[40:50, 0] = uv[50:60, 1]  # shared vertices
+    pairs = overlapping_pairs(uv)
+    reference = overlapping_pairs_reference(uv)
+    assert len(reference) > 100
+    np.testing.assert_array_equal(pairs, reference)
+
+
+def test_counts_split_by_chart():
+    uv = np.array([UNIT, [[0.1, 0.1], [0.5, 0.1], [0.1, 0.5]], [[0.2, 0.0], [0.3, 0.0], [0.2, 0.3]],
+                   [[5.0, 5], [6, 5], [5, 6]]])
+    counts = count_overlaps(uv, face_chart=[0, 0, 1, 2])
+    # Pairs: (0,1) same chart, (0,2) and (1,2) different charts; triangle 3 is alone.
+    np.testing.assert_array_equal(counts.pairs, [[0, 1], [0, 2], [1, 2]])
+    assert (counts.total, counts.within_charts, counts.between_charts, counts.triangles) == (3, 1, 2, 3)
+
+
+def test_validation():
+    with pytest.raises(ValueError, match="shape"):
+        overlapping_pairs(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="face_chart"):
+        count_overlaps(np.zeros((2, 3, 2)), face_chart=[0])
+    with pytest.raises(ValueError, match="NaN"):
+        overlapping_pairs(np.full((2, 3, 2), np.nan))
