@@ -1,0 +1,100 @@
+"""App. A camera (Algorithm 1), checked against hand-computed frames and windows."""
+import numpy as np
+import pytest
+
+from perceptual_uv.core.camera import CLIP_FAR, CLIP_NEAR, EYE_DISTANCE, triangle_cameras
+
+# a = (2, 0, 0), b = (-1, 1, 0), c = (-1, -1, 0): barycentre at the origin, a - C along +x, normal +z.
+# Algorithm 1 by hand: R = (1, 0, 0), U = N x R = (0, 1, 0); projections a (2, 0), b (-1, 1), c (-1, -1);
+# bbox x in [-1, 2] (w = 3), y in [-1, 1] (h = 2); w > h so y grows by (3 - 2) / 2 on both sides.
+V_HAND = np.array([[2.0, 0, 0], [-1, 1, 0], [-1, -1, 0]])
+F_HAND = np.array([[0, 1, 2]])
+
+
+def test_hand_triangle_frame_and_window():
+    cam = triangle_cameras(V_HAND, F_HAND)
+    np.testing.assert_allclose(cam.origin[0], [0, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(cam.normal[0], [0, 0, 1])
+    np.testing.assert_allclose(cam.right[0], [1, 0, 0])
+    np.testing.assert_allclose(cam.up[0], [0, 1, 0])
+    np.testing.assert_allclose(cam.bounds[0], [-1, 2, -1.5, 1.5])
+    assert cam.screen_pixels == 64
+    np.testing.assert_allclose(cam.size, [3.0])
+    np.testing.assert_allclose(cam.half_extent, [1.5])
+    np.testing.assert_allclose(cam.pixel_size, [3.0 / 64])
+    np.testing.assert_allclose(cam.view_centre[0], [0.5, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(cam.eye[0], [0, 0, EYE_DISTANCE])
+    assert cam.valid[0]
+    assert (EYE_DISTANCE, CLIP_NEAR, CLIP_FAR) == (500.0, 0.1, 1000.0)
+
+
+def test_taller_than_wide_grows_horizontally():
+    # Stretch y by 4: projections a (2, 0), b (-1, 4), c (-1, -4); w = 3 < h = 8: x grows by 2.5 each side.
+    V = V_HAND * [1, 4, 1]
+    cam = triangle_cameras(V, F_HAND, screen_pixels=16)
+    np.testing.assert_allclose(cam.bounds[0], [-3.5, 4.5, -4, 4])
+    assert cam.screen_pixels == 16
+
+
+def test_pixel_centres_bottom_row_first():
+    cam = triangle_cameras(V_HAND, F_HAND, screen_pixels=4)
+    centres = cam.pixel_centres(0)
+    step = 3.0 / 4
+    # Row 0 is the bottom of the view (smallest U coordinate), column 0 the left (smallest R coordinate).
+    np.testing.assert_allclose(centres[0, 0], [-1 + step / 2, -1.5 + step / 2, 0])
+    np.testing.assert_allclose(centres[3, 0], [-1 + step / 2, 1.5 - step / 2, 0])
+    np.testing.assert_allclose(centres[0, 3], [2 - step / 2, -1.5 + step / 2, 0])
+
+
+def test_rigid_motion_moves_the_frame_with_the_triangle():
+    rng = np.random.default_rng(0)
+    Q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    Q *= np.sign(np.linalg.det(Q))  # a rotation keeps the winding, hence the normal's side
+    t = np.array([1.0, -2.0, 3.0])
+    cam = triangle_cameras(V_HAND @ Q.T + t, F_HAND)
+    np.testing.assert_allclose(cam.origin[0], t, atol=1e-14)
+    np.testing.assert_allclose(cam.right[0], Q[:, 0], atol=1e-14)
+    np.testing.assert_allclose(cam.up[0], Q[:, 1], atol=1e-14)
+    np.testing.assert_allclose(cam.normal[0], Q[:, 2], atol=1e-14)
+    np.testing.assert_allclose(cam.bounds[0], [-1, 2, -1.5, 1.5], atol=1e-14)
+
+
+def test_vectorized_rows_match_single_calls_and_select_faces():
+    rng = np.random.default_rng(1)
+    V = rng.standard_normal((30, 3))
+    F = rng.integers(0, 30, (20, 3))
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    faces = [3, 0, 5]
+    batch = triangle_cameras(V, F, faces)
+    for row, f in enumerate(faces):
+        single = triangle_cameras(V, F, [f])
+        np.testing.assert_array_equal(batch.bounds[row], single.bounds[0])
+        np.testing.assert_array_equal(batch.right[row], single.right[0])
+    sub = batch[1]
+    assert len(sub) == 1 and sub.faces[0] == 0
+    # Frames are orthonormal and right-handed.
+    frame = np.stack([batch.right, batch.up, batch.normal], axis=1)
+    np.testing.assert_allclose(frame @ frame.transpose(0, 2, 1), np.broadcast_to(np.eye(3), (3, 3, 3)),
+                               atol=1e-14)
+    np.testing.assert_allclose(np.linalg.det(frame), 1.0)
+    # The window is square and covers the triangle.
+    np.testing.assert_allclose(batch.bounds[:, 1] - batch.bounds[:, 0], batch.bounds[:, 3] - batch.bounds[:, 2])
+
+
+def test_degenerate_triangle_is_invalid_not_an_error():
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    cam = triangle_cameras(V, F_HAND)
+    assert not cam.valid[0]
+    assert np.isnan(cam.bounds[0]).all()
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(V=np.zeros((3, 2)), F=F_HAND), "V must"),
+    (dict(V=V_HAND, F=np.array([[0, 1, 3]])), "outside V"),
+    (dict(V=V_HAND, F=F_HAND.astype(float)), "F must"),
+    (dict(V=V_HAND, F=F_HAND, screen_pixels=0), "screen_pixels"),
+    (dict(V=V_HAND, F=F_HAND, faces=[1]), "faces"),
+])
+def test_validation(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        triangle_cameras(**kwargs)

@@ -1,0 +1,98 @@
+"""GMSD (DESIGN decision 4) against values pinned from the independent piq package, and by hand."""
+import importlib.util
+import json
+import pathlib
+
+import numpy as np
+import pytest
+
+from perceptual_uv.core.gmsd import (GMSD_C, _gmsd_gradient_kernel, _pooled_gradient_kernel, gmsd,
+                                     gmsd_from_gradient, gradient_magnitude, luma, pool2)
+
+REFERENCE = pathlib.Path(__file__).resolve().parent / "reference"
+
+
+def _reference_module():
+    spec = importlib.util.spec_from_file_location("make_gmsd_reference", REFERENCE / "make_gmsd_reference.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_matches_piq_pinned_values():
+    pinned = json.loads((REFERENCE / "gmsd_piq.json").read_text())["cases"]
+    cases = _reference_module().make_cases()
+    assert sorted(pinned) == sorted(name for name, _, _ in cases)
+    for name, ref, dist in cases:
+        channel_axis = -1 if ref.ndim == 3 else None
+        assert gmsd(ref, dist, channel_axis=channel_axis) == pytest.approx(pinned[name], abs=1e-12), name
+        # GMSD is symmetric in its arguments.
+        assert gmsd(dist, ref, channel_axis=channel_axis) == pytest.approx(pinned[name], abs=1e-12), name
+
+
+def test_identical_images_give_exactly_zero():
+    rng = np.random.default_rng(0)
+    image = rng.random((64, 64))
+    assert gmsd(image, image) == 0.0
+    assert gmsd(np.zeros((8, 8)), np.zeros((8, 8))) == 0.0
+
+
+def test_gradient_magnitude_by_hand():
+    # A single 1 in the middle of a 3 x 3 zero image: Prewitt/3 gives 0 at the centre, 1/3 at edge-adjacent
+    # positions (one of gx, gy sees the 1 once) and sqrt(2)/3 at the corners (both do).
+    image = np.zeros((3, 3))
+    image[1, 1] = 1.0
+    expected = np.array([[np.sqrt(2), 1, np.sqrt(2)], [1, 0, 1], [np.sqrt(2), 1, np.sqrt(2)]]) / 3
+    np.testing.assert_allclose(gradient_magnitude(image), expected, atol=1e-15)
+    # Zero padding: a constant image has border gradients (a step to 0 outside), interior ones vanish.
+    g = gradient_magnitude(np.ones((4, 4)))
+    np.testing.assert_allclose(g[1:3, 1:3], 0.0)
+    np.testing.assert_allclose(g[0, 1], 1.0)  # gy = (0 + 0 + 0 - 3) / 3 in magnitude
+
+
+def test_hand_gmsd_against_a_flat_reference():
+    # Reference 0 everywhere: m_r = 0 and GMS = c / (m_d^2 + c). Distorted: a 2x2 block of ones in an 8 x 8
+    # image pools to a single 1 at (1, 1) of a 4 x 4 map, whose gradient magnitudes are those above.
+    dist = np.zeros((8, 8))
+    dist[2:4, 2:4] = 1.0
+    m = np.zeros((4, 4))
+    m[0:3, 0:3] = np.array([[np.sqrt(2), 1, np.sqrt(2)], [1, 0, 1], [np.sqrt(2), 1, np.sqrt(2)]]) / 3
+    gms = GMSD_C / (m * m + GMSD_C)
+    assert gmsd(np.zeros((8, 8)), dist) == pytest.approx(np.std(gms), abs=1e-15)
+
+
+def test_luma_and_pooling():
+    rgb = np.array([[[1.0, 0, 0], [0, 1, 0]], [[0, 0, 1], [1, 1, 1]]])
+    np.testing.assert_allclose(luma(rgb), [[0.299, 0.587], [0.114, 1.0]])
+    rgba = np.concatenate([rgb, np.zeros((2, 2, 1))], axis=-1)
+    np.testing.assert_allclose(luma(rgba), luma(rgb))
+    np.testing.assert_allclose(pool2(np.arange(16.0).reshape(4, 4)), [[2.5, 4.5], [10.5, 12.5]])
+    # Odd sides: piq appends a zero row and column, then pooling drops an incomplete pair.
+    np.testing.assert_allclose(pool2(np.ones((3, 3))), [[1, 0.5], [0.5, 0.25]])
+    assert pool2(np.ones((4, 5))).shape == (2, 3)
+
+
+def test_numba_kernels_match_numpy():
+    rng = np.random.default_rng(4)
+    ref, dist = rng.random((2, 64, 64))
+    out_ref = np.empty((32, 32))
+    out_dist = np.empty((32, 32))
+    _pooled_gradient_kernel(ref, out_ref)
+    _pooled_gradient_kernel(dist, out_dist)
+    np.testing.assert_allclose(out_ref, gradient_magnitude(pool2(ref)), atol=1e-15)
+    assert _gmsd_gradient_kernel(out_ref, out_dist, GMSD_C) == pytest.approx(gmsd(ref, dist), abs=1e-15)
+    assert gmsd_from_gradient(out_ref, out_dist) == pytest.approx(gmsd(ref, dist), abs=1e-15)
+
+
+def test_options_and_validation():
+    rng = np.random.default_rng(1)
+    ref, dist = rng.random((2, 16, 16))
+    assert gmsd(255 * ref, 255 * dist, data_range=255) == pytest.approx(gmsd(ref, dist), abs=1e-15)
+    score, gms = gmsd(ref, dist, full=True)
+    assert gms.shape == (8, 8) and score == pytest.approx(gms.std(), abs=1e-15)
+    with pytest.raises(ValueError, match="shape"):
+        gmsd(ref, dist[:8])
+    with pytest.raises(ValueError, match="data_range"):
+        gmsd(ref, dist, data_range=0)
+    with pytest.raises(ValueError, match="channels"):
+        gmsd(rng.random((4, 4, 2)), rng.random((4, 4, 2)), channel_axis=-1)

@@ -1,0 +1,204 @@
+"""The triangle-wise loss E (Sec. 4.1.1): identity, symmetry, constant detection, kernels vs numpy."""
+import dataclasses
+import pathlib
+import pickle
+
+import numpy as np
+import pytest
+
+from perceptual_uv.core import loss
+from perceptual_uv.core.gmsd import luma
+from perceptual_uv.core.one_ring import one_ring_faces
+
+SHARED = pathlib.Path(__file__).resolve().parents[1].parent / "shared"
+IDENTITY = [0.0, 1.0, 1.0, 0.0]
+
+
+def grid_mesh(cells=6, uv_scale=0.5, uv_offset=(0.2, 0.3)):
+    """A flat (z = 0) grid of the unit square, UVs an affine image of the positions."""
+    n = cells + 1
+    y, x = np.mgrid[0:n, 0:n] / cells
+    V = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)])
+    quads = [(i * n + j, i * n + j + 1, (i + 1) * n + j + 1, (i + 1) * n + j) for i in range(cells)
+             for j in range(cells)]
+    F = np.array([[a, b, c] for a, b, c, d in quads] + [[a, c, d] for a, b, c, d in quads], dtype=np.int64)
+    uv = V[F][:, :, :2] * uv_scale + np.asarray(uv_offset)
+    return V, F, uv
+
+
+def random_params(rng, k):
+    lo = np.array([0.0, 0.1, 0.1, 0.0])
+    hi = np.array([np.pi / 2, 1.0, 1.0, np.pi / 2])
+    return lo + (hi - lo) * rng.random((k, 4))
+
+
+@pytest.fixture(scope="module")
+def textured():
+    V, F, uv = grid_mesh()
+    rng = np.random.default_rng(0)
+    texture = rng.random((40, 56, 3))  # non-square: h = 40, w = 56; a triangle covers ~ 4 x 5 texels
+    centre_face = 14  # interior: its one-ring is complete
+    return V, F, uv, texture, centre_face
+
+
+def test_identity_reproduces_the_reference(textured):
+    V, F, uv, texture, face = textured
+    problem = loss.triangle_problem(V, F, uv, texture, face)
+    assert not problem.is_constant
+    assert len(problem.pixel) == 64 * 64  # an interior triangle of a flat grid fills its view
+    # Magnified (~10 px per texel): every texel read is determined, the re-bake returns the input texels.
+    assert problem.evaluate(IDENTITY)[0] < 1e-9
+    # A real shrink loses detail.
+    assert problem.evaluate([0.0, 0.3, 0.3, 0.0])[0] > 1e-2
+
+
+def test_ninety_degree_rotation_symmetry(textured):
+    V, F, uv, texture, face = textured
+    problem = loss.triangle_problem(V, F, uv, texture, face)
+    params = random_params(np.random.default_rng(1), 6)
+    rotated = params + [np.pi / 2, 0, 0, 0]
+    e, e_rot = problem.evaluate(params), problem.evaluate(rotated)
+    assert e.min() > 1e-4
+    np.testing.assert_allclose(e_rot, e, rtol=1e-9, atol=1e-13)
+    # S(lambda1, lambda2, beta + pi/2) = S(lambda2, lambda1, beta): the same deformation, the same E.
+    swapped = params[:, [0, 2, 1, 3]] + [0, 0, 0, np.pi / 2]
+    np.testing.assert_allclose(problem.evaluate(swapped), e, rtol=1e-9, atol=1e-13)
+
+
+def test_fused_kernel_matches_numpy_reference(textured):
+    V, F, uv, texture, face = textured
+    problem = loss.triangle_problem(V, F, uv, texture, face)
+    params = np.vstack([IDENTITY, random_params(np.random.default_rng(2), 5), [0.3, 0.05, 1.0, 1.2]])
+    np.testing.assert_allclose(problem.evaluate(params), loss._evaluate_reference(problem, params),
+                               rtol=1e-7, atol=1e-12)
+
+
+def test_integer_uv_shift_changes_nothing(textured):
+    # REPEAT wrapping: moving all UVs by whole texture periods reads the same texels.
+    V, F, uv, texture, face = textured
+    params = random_params(np.random.default_rng(3), 4)
+    e = loss.triangle_problem(V, F, uv, texture, face).evaluate(params)
+    shifted = loss.triangle_problem(V, F, uv + [1.0, -2.0], texture, face).evaluate(params)
+    np.testing.assert_allclose(shifted, e, rtol=1e-7, atol=1e-12)
+
+
+def test_uv_area_and_centre_by_hand():
+    V, F, _ = grid_mesh(cells=1)
+    uv = np.array([[[0.1, 0.2], [0.5, 0.2], [0.1, 0.7]], [[0.5, 0.2], [0.5, 0.7], [0.1, 0.7]]])
+    problem = loss.triangle_problem(V, F, uv, np.random.default_rng(0).random((32, 48)), 0, screen_pixels=16)
+    assert problem.uv_area == pytest.approx(0.5 * 0.4 * 0.5 * 32 * 48)
+    # UV barycentre (0.2333, 0.3667) -> texel units (11.2, 11.73) -> nearest texel centre (11.5, 11.5).
+    np.testing.assert_allclose(problem.centre, [11.5, 11.5])
+    assert problem.texture_shape == (32, 48) and problem.screen_pixels == 16
+
+
+def test_constant_detection_is_exact():
+    V, F, uv = grid_mesh(uv_scale=0.25, uv_offset=(0.1, 0.1))  # UVs in [0.1, 0.35]^2 of a 64 x 64 texture
+    face = 14
+    texture = np.full((64, 64), 0.5)
+    texture[60, 60] = 0.9  # far outside every disk the one-ring can reach
+    problem = loss.triangle_problem(V, F, uv, texture, face)
+    assert problem.is_constant
+    params = random_params(np.random.default_rng(4), 5)
+    np.testing.assert_array_equal(problem.evaluate(params), 0.0)
+    # The numeric path agrees that nothing changes (up to the ridge of the re-bake).
+    numeric = dataclasses.replace(problem, is_constant=False).evaluate(params)
+    assert numeric.max() < 1e-12
+    # One texel near the triangle that a shrink cannot reproduce: not constant, and E > 0 somewhere.
+    cx, cy = (problem.centre - 0.5).astype(int)
+    texture[cy + 1, cx] = 0.1
+    problem = loss.triangle_problem(V, F, uv, texture, face)
+    assert not problem.is_constant
+    assert problem.evaluate([0.0, 0.2, 0.2, 0.0])[0] > 1e-3
+
+
+def test_degenerate_triangle_is_constant():
+    V, F, uv = grid_mesh(cells=1)
+    V = V.copy()
+    V[:, 1] = 0.0  # every triangle collapses onto a line
+    problem = loss.triangle_problem(V, F, uv, np.random.default_rng(0).random((8, 8)), 0)
+    assert problem.is_constant and len(problem.pixel) == 0
+    np.testing.assert_array_equal(problem.evaluate([IDENTITY, [0.1, 0.5, 0.5, 0.1]]), 0.0)
+
+
+def test_batch_matches_single_problems_and_pickles(textured):
+    V, F, uv, texture, _ = textured
+    adjacency = one_ring_faces(F, V=V)
+    faces = [14, 3, 40]
+    batch = loss.prepare_triangles(V, F, uv, texture, faces, adjacency=adjacency)
+    assert len(batch) == 3 and list(batch.faces) == faces
+    params = random_params(np.random.default_rng(5), 3)
+    for i, face in enumerate(faces):
+        single = loss.triangle_problem(V, F, uv, texture, face)
+        np.testing.assert_array_equal(batch.evaluate(i, params), single.evaluate(params))
+        assert batch.uv_area[i] == single.uv_area and batch.is_constant[i] == single.is_constant
+    clone = pickle.loads(pickle.dumps(batch[1]))
+    np.testing.assert_array_equal(clone.evaluate(params), batch[1].evaluate(params))
+    assert len(pickle.dumps(batch[1])) < 200_000
+
+
+def test_render_reference_is_the_problem_reference_in_luma(textured):
+    V, F, uv, texture, face = textured
+    image, mask, camera = loss.render_reference(V, F, uv, texture, face)
+    assert image.shape == (64, 64, 3) and mask.all() and len(camera) == 1
+    problem = loss.triangle_problem(V, F, uv, texture, face)
+    np.testing.assert_allclose(luma(image), problem.reference_image(), atol=1e-14)
+
+
+def test_render_reference_row_zero_is_the_bottom():
+    # Triangle a = (2, 0, 0), b = (-1, 1, 0), c = (-1, -1, 0): camera right = +x, up = +y (test_camera).
+    V = np.array([[2.0, 0, 0], [-1, 1, 0], [-1, -1, 0]])
+    F = np.array([[0, 1, 2]])
+    uv = ((V[F][:, :, :2] + [1.0, 1.5]) / 4.0)  # UV = affine in (x, y), inside [0, 1]
+    rows = np.arange(64, dtype=np.float64)
+    texture = np.repeat((rows / 63)[:, None], 64, axis=1)  # luma grows with the texture row (with v)
+    image, mask, _ = loss.render_reference(V, F, uv, texture, 0)
+    column = image[:, 16][mask[:, 16]]
+    assert len(column) > 10 and np.all(np.diff(column) > 0)  # grows with the image row: row 0 at the bottom
+
+
+def test_validation(textured):
+    V, F, uv, texture, face = textured
+    with pytest.raises(ValueError, match="uv"):
+        loss.prepare_triangles(V, F, uv[:, :2], texture)
+    with pytest.raises(ValueError, match="screen_pixels"):
+        loss.prepare_triangles(V, F, uv, texture, [face], screen_pixels=63)
+    with pytest.raises(ValueError, match="faces"):
+        loss.prepare_triangles(V, F, uv, texture, [len(F)])
+    problem = loss.triangle_problem(V, F, uv, texture, face, screen_pixels=16)
+    with pytest.raises(ValueError, match="params"):
+        problem.evaluate([[0.0, 1.0, 1.0]])
+    with pytest.raises(ValueError, match="finite"):
+        problem.evaluate([[0.0, np.nan, 1.0, 0.0]])
+
+
+def _read_obj(path):
+    positions, texcoords, corners = [], [], []
+    for line in path.read_text().splitlines():
+        parts = line.split()
+        if parts and parts[0] == "v":
+            positions.append([float(x) for x in parts[1:4]])
+        elif parts and parts[0] == "vt":
+            texcoords.append([float(x) for x in parts[1:3]])
+        elif parts and parts[0] == "f":
+            corners.append([[int(i) - 1 for i in c.split("/")[:2]] for c in parts[1:4]])
+    corners = np.array(corners)
+    return np.array(positions), corners[:, :, 0], np.array(texcoords)[corners[:, :, 1]]
+
+
+@pytest.mark.skipif(not (SHARED / "models" / "spot").is_dir(), reason="../shared/models/spot is absent")
+def test_spot_identity_and_kernel_agreement():
+    from skimage.io import imread
+
+    spot = SHARED / "models" / "spot"
+    V, F, uv = _read_obj(spot / "spot_triangulated.obj")
+    texture = np.ascontiguousarray(imread(spot / "spot_texture.png")[::-1, :, :3] / 255.0)
+    faces = np.random.default_rng(6).choice(len(F), 12, replace=False)
+    batch = loss.prepare_triangles(V, F, uv, texture, faces)
+    work = [i for i in range(len(batch)) if not batch.is_constant[i]]
+    assert 0 < len(work) < len(batch)  # spot has both kinds
+    params = np.vstack([IDENTITY, random_params(np.random.default_rng(7), 3)])
+    for i in work[:3]:
+        e = batch.evaluate(i, params)
+        assert e[0] < 1e-8
+        np.testing.assert_allclose(e, loss._evaluate_reference(batch[i], params), rtol=1e-7, atol=1e-12)
