@@ -149,6 +149,9 @@ def main(argv=None):
     except (UsageError, ValueError, FileNotFoundError, PermissionError) as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
+    except NotImplementedError as error:
+        print(f"{PROG}: {error}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"{PROG}: cancelled", file=sys.stderr)
         return 130

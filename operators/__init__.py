@@ -2,8 +2,9 @@
 import bpy
 
 from .optimize_uvs import UV_OT_perceptual_optimize
+from .show_loss import UV_OT_perceptual_show_loss
 
-classes = (UV_OT_perceptual_optimize,)
+classes = (UV_OT_perceptual_optimize, UV_OT_perceptual_show_loss)
 
 
 def register():

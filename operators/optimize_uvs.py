@@ -1,25 +1,30 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Operator "Optimize UVs" (``uv.perceptual_optimize``)."""
+"""Operator "Optimize UVs" (``uv.perceptual_optimize``): the whole method behind one button."""
+import time
+
 import bpy
 
-from ..properties import settings_annotations
+from ..properties import settings_annotations, settings_from
+
+# Time the modal operator spends in the pipeline per timer tick before it hands the UI back.
+SLICE_SECONDS = 0.1
 
 
-def _target_problem(obj):
-    """Why ``obj`` cannot be optimized, or None when it can."""
+def _objects(context):
+    """The active object plus the selected meshes that share its base-colour image (one atlas)."""
     from ..bridge.material import base_color_image_node
 
-    if obj is None or obj.type != "MESH":
-        return "Select a mesh object"
-    if not obj.data.uv_layers:
-        return f"Mesh '{obj.data.name}' has no UV map"
-    if not any(base_color_image_node(slot.material) for slot in obj.material_slots):
-        return f"Object '{obj.name}' has no image texture feeding a material's Base Color"
-    return None
+    active = context.active_object
+    images = {node.image for slot in active.material_slots if (node := base_color_image_node(slot.material))}
+    others = [obj for obj in context.selected_objects if obj is not active and obj.type == "MESH"
+              and any((node := base_color_image_node(slot.material)) and node.image in images
+                      for slot in obj.material_slots)]
+    return [active, *others]
 
 
 class UV_OT_perceptual_optimize(bpy.types.Operator):
-    """Re-parameterize the active UV map so the texture needs fewer pixels for the same look on screen"""
+    """Re-parameterize the UV map so the texture needs fewer pixels for the same look on screen, and bake the
+    texture into a new image on a new UV map (the original UV map, image and materials stay as they are)"""
 
     bl_idname = "uv.perceptual_optimize"
     bl_label = "Optimize UVs"
@@ -29,11 +34,90 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        problem = _target_problem(context.active_object)
+        from ..bridge.pipeline import target_problem
+
+        if context.mode not in {"OBJECT", "EDIT_MESH"}:
+            cls.poll_message_set("Switch to Object or Edit Mode")
+            return False
+        problem = target_problem(context.active_object)
         if problem is not None:
             cls.poll_message_set(problem)
         return problem is None
 
+    def _start(self, context):
+        from ..bridge.pipeline import optimize_objects
+
+        self._previous_mode = context.mode
+        settings = settings_from(self)
+        if context.mode == "EDIT_MESH":
+            bpy.ops.object.mode_set(mode="OBJECT")  # edit-mode meshes hold their data in BMesh until left
+        return optimize_objects(_objects(context), settings)
+
+    def _restore_mode(self):
+        if self._previous_mode == "EDIT_MESH":
+            bpy.ops.object.mode_set(mode="EDIT")
+
+    def _finish(self, context, result):
+        report = result.report
+        self.report({"INFO"}, f"{report['uv_map']}: {report['resolution']} px image '{report['image']}', relative "
+                    f"cost {report['relative_cost']:.2f}, {report['triangles_within_bound']:.0%} of triangles "
+                    f"within the loss bound, {report['times_s']['total']:.0f} s")
+
     def execute(self, context):
-        self.report({"ERROR"}, "Optimize UVs is not implemented yet")
-        return {"CANCELLED"}
+        from ..bridge.pipeline import run_to_end
+
+        try:
+            result = run_to_end(self._start(context))
+        except (ValueError, OSError) as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        finally:
+            self._restore_mode()
+        self._finish(context, result)
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        scene_settings = context.scene.perceptual_uv
+        for name in scene_settings.bl_rna.properties.keys():
+            if name != "rna_type" and not self.properties.is_property_set(name):
+                setattr(self, name, getattr(scene_settings, name))
+        try:
+            self._pipeline = self._start(context)
+        except ValueError as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        self._timer = context.window_manager.event_timer_add(0.05, window=context.window)
+        context.window_manager.progress_begin(0, 1000)
+        context.window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def _end_modal(self, context):
+        context.window_manager.event_timer_remove(self._timer)
+        context.window_manager.progress_end()
+        context.workspace.status_text_set(None)
+        self._restore_mode()
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self._pipeline.close()  # removes everything the run created so far
+            self._end_modal(context)
+            self.report({"WARNING"}, "Optimize UVs cancelled; nothing was changed")
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        deadline = time.perf_counter() + SLICE_SECONDS
+        try:
+            while time.perf_counter() < deadline:
+                progress = next(self._pipeline)
+                stage_fraction = progress.done / max(progress.total, 1)
+                context.window_manager.progress_update(int(1000 * stage_fraction))
+                context.workspace.status_text_set(f"Optimize UVs: {progress.message} (Esc to cancel)")
+        except StopIteration as finished:
+            self._end_modal(context)
+            self._finish(context, finished.value)
+            return {"FINISHED"}
+        except (ValueError, OSError) as error:
+            self._end_modal(context)
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        return {"RUNNING_MODAL"}

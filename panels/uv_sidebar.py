@@ -3,6 +3,7 @@
 import bpy
 
 from ..operators.optimize_uvs import UV_OT_perceptual_optimize
+from ..operators.show_loss import UV_OT_perceptual_show_loss
 
 
 def draw_uv_menu_entry(self, context):
@@ -48,3 +49,4 @@ class IMAGE_PT_perceptual_uv(bpy.types.Panel):
         for name in settings.bl_rna.properties.keys():
             if name != "rna_type" and hasattr(op, name):
                 setattr(op, name, getattr(settings, name))
+        layout.operator(UV_OT_perceptual_show_loss.bl_idname, icon="SHADING_SOLID")

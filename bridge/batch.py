@@ -1,0 +1,126 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The batch commands behind the CLI: open a model, run the pipeline, write the result and the report.
+
+Outputs are written to temporary names and renamed at the very end, so an interrupted or failed run leaves no
+partial files behind.
+"""
+import contextlib
+import json
+import os
+import pathlib
+import sys
+
+import bpy
+
+__all__ = ["optimize_file", "evaluate_file"]
+
+
+def _log(message):
+    print(message, file=sys.stderr, flush=True)
+
+
+def _textured_objects(object_name):
+    from .material import base_color_image_node
+
+    if object_name is not None:
+        obj = bpy.data.objects.get(object_name)
+        if obj is None:
+            names = ", ".join(sorted(o.name for o in bpy.data.objects if o.type == "MESH"))
+            raise ValueError(f"no object '{object_name}' in the file (meshes: {names or 'none'})")
+        return [obj]
+    groups = {}
+    for obj in bpy.context.scene.objects:
+        if obj.type != "MESH":
+            continue
+        for slot in obj.material_slots:
+            node = base_color_image_node(slot.material)
+            if node is not None:
+                groups.setdefault(node.image.name, []).append(obj)
+                break
+    if not groups:
+        raise ValueError("no mesh in the file has an image texture feeding its material's Base Color")
+    if len(groups) > 1:
+        listing = "; ".join(f"{image}: {', '.join(o.name for o in objs)}" for image, objs in sorted(groups.items()))
+        raise ValueError(f"the meshes use {len(groups)} different textures ({listing}); pick one with --object")
+    return next(iter(groups.values()))
+
+
+@contextlib.contextmanager
+def _publish(path):
+    """Yield a temporary path next to ``path``; rename it into place only if the block finishes."""
+    path = pathlib.Path(path).resolve()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.stem}.partial{path.suffix}")
+    try:
+        yield temporary
+        os.replace(temporary, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            temporary.unlink()
+
+
+def _export_glb(objects, result, path):
+    """Export ``objects`` with the new UV map as their only texture coordinates and the new image."""
+    for obj in objects:
+        layers = obj.data.uv_layers
+        for layer in list(layers):
+            if layer.name != result.uv_map:
+                layers.remove(layer)  # this batch session's copy of the data only; the input file is untouched
+        layers[result.uv_map].active = True
+        layers[result.uv_map].active_render = True
+    for obj in bpy.context.view_layer.objects:
+        obj.select_set(obj in objects)
+    bpy.ops.export_scene.gltf(filepath=str(path), export_format="GLB", use_selection=True,
+                              export_image_format="AUTO")
+
+
+def optimize_file(args):
+    """``optimize``: see DESIGN's CLI contract; ``args`` comes from :func:`perceptual_uv.cli.parse_args`."""
+    from .mesh_io import import_model
+    from .pipeline import Progress, optimize_objects
+
+    import_model(args.input)
+    objects = _textured_objects(args.object)
+    out = pathlib.Path(args.out).resolve()
+    images_dir = out.parent
+    images_dir.mkdir(parents=True, exist_ok=True)
+    pipeline = optimize_objects(objects, args.settings, source_uv=args.uv, output_dir=str(images_dir))
+    last_stage = None
+    try:
+        while True:
+            progress: Progress = next(pipeline)
+            if progress.stage != last_stage or progress.done == progress.total:
+                _log(f"[{progress.stage}] {progress.message}")
+                last_stage = progress.stage
+    except StopIteration as finished:
+        result = finished.value
+    except BaseException:
+        pipeline.close()
+        raise
+    report = dict(result.report, input=str(args.input), output=str(out))
+    image_file = report.get("image_file")
+    try:
+        with _publish(out) as temporary:
+            if out.suffix.lower() == ".glb":
+                _export_glb(objects, result, temporary)
+            else:
+                bpy.ops.wm.save_as_mainfile(filepath=str(temporary), copy=True, relative_remap=True)
+        if args.report:
+            with _publish(args.report) as temporary:
+                temporary.write_text(json.dumps(report, indent=2) + "\n")
+    except BaseException:
+        if image_file:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(image_file)
+        raise
+    print(f"result: {out}")
+    if image_file:
+        print(f"image:  {image_file}")
+    if args.report:
+        print(f"report: {pathlib.Path(args.report).resolve()}")
+    return report
+
+
+def evaluate_file(args):
+    """``evaluate``: the Sec. 5 evaluation is not implemented yet (issue 6)."""
+    raise NotImplementedError("evaluate is not implemented yet")

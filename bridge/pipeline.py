@@ -1,0 +1,372 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The whole method on Blender objects, as a generator that yields progress.
+
+``optimize_objects(objects, settings)`` is driven one slice at a time by the modal operator (one ``next`` per
+timer tick), run to the end by ``execute`` and by the batch CLI, and closed (``.close()``) to cancel: whatever
+it created so far (UV map, image, material copies, face attribute) is removed again, so a cancelled or failed
+run leaves the file exactly as it was. The original UV map, image, materials and mesh are never modified.
+"""
+import dataclasses
+import os
+import time
+
+import bpy
+import numpy as np
+
+from ..core import cost as texel_cost
+from .material import base_color_image_node
+
+__all__ = ["Progress", "PipelineResult", "optimize_objects", "run_to_end", "target_problem", "loss_ramp",
+           "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE"]
+
+LOSS_ATTRIBUTE = "perceptual_loss"
+LOSS_COLOR_ATTRIBUTE = "perceptual_loss_color"
+
+
+@dataclasses.dataclass(frozen=True)
+class Progress:
+    """One step of a run: ``stage`` name, ``done`` of ``total`` units of it, and a line for the status bar."""
+
+    stage: str
+    done: int
+    total: int
+    message: str
+
+
+@dataclasses.dataclass
+class PipelineResult:
+    """What a finished run made and measured; ``report`` is the JSON report of DESIGN's contract."""
+
+    uv_map: str
+    image: "bpy.types.Image"
+    materials: list
+    report: dict
+
+
+def target_problem(obj):
+    """Why ``obj`` cannot be optimized (a sentence for the user), or None when it can."""
+    if obj is None or obj.type != "MESH":
+        return "Select a mesh object"
+    if not obj.data.uv_layers:
+        return f"Mesh '{obj.data.name}' has no UV map: unwrap it first"
+    if not any(base_color_image_node(slot.material) for slot in obj.material_slots):
+        return f"Object '{obj.name}' has no image texture feeding a material's Base Color"
+    return None
+
+
+def _source_image(objects):
+    images = {node.image for obj in objects for slot in obj.material_slots
+              if (node := base_color_image_node(slot.material)) is not None}
+    if len(images) != 1:
+        names = ", ".join(sorted(image.name for image in images))
+        raise ValueError(f"the objects' base colours use {len(images)} images ({names}); optimize objects that "
+                         "share one texture together, or each material's objects separately")
+    (image,) = images
+    if image.size[0] == 0 or image.size[1] == 0:
+        raise ValueError(f"image '{image.name}' has no pixels: is its file '{image.filepath}' missing?")
+    return image
+
+
+def _unique_uv_name(objects, wanted):
+    name, counter = wanted, 1
+    while any(name in obj.data.uv_layers for obj in objects):
+        name, counter = f"{wanted}.{counter:03d}", counter + 1
+    return name
+
+
+class _Created:
+    """Everything a run adds to the file, so that a cancel or an error can take it away again."""
+
+    def __init__(self):
+        self.uv_layers = []      # (mesh, name)
+        self.attributes = []     # (mesh, name)
+        self.images = []
+        self.materials = []
+        self.slot_links = []     # (object, slot index, previous material, previous link)
+
+    def remove_all(self):
+        for obj, index, material, link in reversed(self.slot_links):
+            slot = obj.material_slots[index]
+            slot.material = None
+            slot.link = link
+            slot.material = material
+        for mesh, name in self.uv_layers:
+            if name in mesh.uv_layers:
+                mesh.uv_layers.remove(mesh.uv_layers[name])
+        for mesh, name in self.attributes:
+            if name in mesh.attributes:
+                mesh.attributes.remove(mesh.attributes[name])
+        for block in self.materials:
+            bpy.data.materials.remove(block)
+        for block in self.images:
+            bpy.data.images.remove(block)
+
+
+def _read_objects(objects, source_uv):
+    from ..core.mesh import concatenate_meshes
+    from .mesh_io import read_image, read_mesh
+
+    mesh = concatenate_meshes([read_mesh(obj, uv_name=source_uv) for obj in objects])
+    image = _source_image(objects)
+    return mesh, image, read_image(image)
+
+
+def loss_ramp(losses, epsilon):
+    """Overlay colours: green at E = 0, yellow at E = epsilon, red from 2 epsilon on.
+
+    Parameters
+    ----------
+    losses : (k,) array_like
+    epsilon : float
+
+    Returns
+    -------
+    (k, 4) float32 ndarray
+        Linear RGBA.
+    """
+    t = np.clip(np.asarray(losses, dtype=np.float64) / (2.0 * epsilon), 0.0, 1.0)
+    rgba = np.ones((len(t), 4), dtype=np.float32)
+    rgba[:, 0] = np.minimum(1.0, 2.0 * t)
+    rgba[:, 1] = np.minimum(1.0, 2.0 - 2.0 * t)
+    rgba[:, 2] = 0.0
+    return rgba
+
+
+def _write_loss_attributes(obj, tri_polygons, losses, epsilon, created):
+    """Per polygon, the largest E of its triangles: a float face attribute, and a colour for the overlay."""
+    mesh = obj.data
+    polygon_loss = np.zeros(len(mesh.polygons), dtype=np.float32)
+    np.maximum.at(polygon_loss, tri_polygons, losses.astype(np.float32))
+    for name in (LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE):
+        if name in mesh.attributes:
+            mesh.attributes.remove(mesh.attributes[name])
+    attribute = mesh.attributes.new(LOSS_ATTRIBUTE, "FLOAT", "FACE")
+    created.attributes.append((mesh, LOSS_ATTRIBUTE))
+    attribute.data.foreach_set("value", polygon_loss)
+    # Colour attributes live on points or corners: every corner of a polygon gets its polygon's colour.
+    loop_totals = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", loop_totals)
+    loop_polygon = np.repeat(np.arange(len(mesh.polygons)), loop_totals)
+    colors = mesh.attributes.new(LOSS_COLOR_ATTRIBUTE, "BYTE_COLOR", "CORNER")
+    created.attributes.append((mesh, LOSS_COLOR_ATTRIBUTE))
+    colors.data.foreach_set("color", loss_ramp(polygon_loss, epsilon)[loop_polygon].ravel())
+
+
+def _material_copies(objects, image, uv_name, created):
+    """Copies of the objects' materials that sample ``image`` through ``uv_name``, linked per object."""
+    copies = {}
+    for obj in objects:
+        for index, slot in enumerate(obj.material_slots):
+            material = slot.material
+            node = base_color_image_node(material)
+            if node is None:
+                continue
+            if material not in copies:
+                copy = material.copy()
+                copy.name = f"{material.name}_perceptual"
+                created.materials.append(copy)
+                copy_node = copy.node_tree.nodes[node.name]
+                copy_node.image = image
+                uv_node = copy.node_tree.nodes.new("ShaderNodeUVMap")
+                uv_node.uv_map = uv_name
+                uv_node.location = copy_node.location[0] - 200, copy_node.location[1]
+                copy.node_tree.links.new(uv_node.outputs["UV"], copy_node.inputs["Vector"])
+                copies[material] = copy
+            created.slot_links.append((obj, index, slot.material, slot.link))
+            slot.link = "OBJECT"  # the mesh's own material list (shared with other objects) stays as it was
+            slot.material = copies[material]
+    return list(copies.values())
+
+
+def _save_or_pack(image, output_dir):
+    """Save next to the .blend (or into ``output_dir``); pack into the file when there is nowhere to save."""
+    folder = output_dir or (os.path.dirname(bpy.data.filepath) if bpy.data.filepath else None)
+    if folder is None:
+        image.pack()
+        return None
+    path = os.path.join(bpy.path.abspath(folder), f"{bpy.path.clean_name(image.name)}.png")
+    image.filepath_raw = path
+    image.file_format = "PNG"
+    try:
+        image.save()
+    except RuntimeError as error:
+        image.pack()
+        raise OSError(f"could not save '{path}' ({error}); the image is packed into the file instead") from None
+    image.filepath = bpy.path.relpath(path) if bpy.data.filepath else path
+    return path
+
+
+def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
+    """Optimize the UV map of ``objects`` (sharing one base-colour image) and bake the texture onto it.
+
+    Parameters
+    ----------
+    objects : sequence of bpy.types.Object
+        Mesh objects whose base colour comes from the same image (one object, or several sharing an atlas).
+    settings : perceptual_uv.core.settings.OptimizeSettings
+    source_uv : str, optional
+        Name of the input UV map; default the UV map used for rendering (active render) of each mesh.
+    output_dir : str, optional
+        Folder for the new image; default next to the .blend, or packed when the file is unsaved.
+
+    Yields
+    ------
+    Progress
+
+    Returns
+    -------
+    PipelineResult
+        Through ``StopIteration.value``; :func:`run_to_end` returns it directly.
+
+    References
+    ----------
+    Sun et al. 2022: Sec. 4.1 (triangle-wise), Sec. 4.2 and App. B (mesh-wise), Sec. 5.1 (packing with
+    translations and 90-degree rotations, resolution from the target cost, Eq. 20-21).
+    """
+    from ..core.loss import texture_luma
+    from ..core.meshwise import iter_solve_meshwise
+    from ..core.trianglewise import iter_optimize_triangles, losses_at
+    from .bake import bake_base_color
+    from .mesh_io import write_uv_layer
+    from .pack import pack_uv_layer
+
+    objects = list(objects)
+    if not objects:
+        raise ValueError("no objects to optimize")
+    for obj in objects:
+        problem = target_problem(obj)
+        if problem:
+            raise ValueError(problem)
+    if source_uv is None:
+        source_uv = next(layer.name for layer in objects[0].data.uv_layers if layer.active_render)
+    for obj in objects:
+        if source_uv not in obj.data.uv_layers:
+            raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}'")
+
+    started = time.perf_counter()
+    times = {}
+    created = _Created()
+    try:
+        yield Progress("read", 0, 1, "Reading mesh and texture")
+        mesh, image, texture = _read_objects(objects, source_uv)
+        V, F, uv_in = mesh.V, mesh.F, mesh.uv
+        luma = texture_luma(texture)
+        height, width = texture.shape[:2]
+        m = len(F)
+        per_object = [mesh.object_index == index for index in range(len(objects))]
+
+        clock = time.perf_counter()
+        stage = iter_optimize_triangles(V, F, uv_in, luma, epsilon=settings.epsilon,
+                                        evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
+                                        workers=settings.workers, seed=settings.seed)
+        triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock)
+        times["triangle"] = time.perf_counter() - clock
+
+        clock = time.perf_counter()
+        stage = iter_solve_meshwise(F, uv_in, triangles.params, triangles.w_R, triangles.w_S)
+        meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit", clock)
+        times["mesh"] = time.perf_counter() - clock
+
+        yield Progress("pack", 0, 1, "Packing islands")
+        clock = time.perf_counter()
+        uv_name = _unique_uv_name(objects, settings.uv_map_name)
+        for obj, rows in zip(objects, per_object):
+            write_uv_layer(obj, uv_name, meshwise.uv[rows], mesh.tri_loops[rows])
+            created.uv_layers.append((obj.data, uv_name))
+        resolution = _pack(objects, mesh, uv_name, (width, height), settings, pack_uv_layer)
+        uv_out = _read_packed(objects, mesh, uv_name)
+        times["pack"] = time.perf_counter() - clock
+
+        yield Progress("bake", 0, 1, f"Baking a {resolution} x {resolution} image")
+        clock = time.perf_counter()
+        image_name = settings.image_name or f"{os.path.splitext(image.name)[0]}_perceptual"
+        new_image = bake_base_color(objects, source_uv=source_uv, target_uv=uv_name, resolution=resolution,
+                                    margin=settings.margin, image_name=image_name)
+        created.images.append(new_image)
+        times["bake"] = time.perf_counter() - clock
+
+        yield Progress("loss", 0, 1, "Measuring the loss per triangle")
+        losses = losses_at(V, F, uv_in, luma, meshwise.uv, screen_pixels=settings.screen_pixels)
+        for obj, rows in zip(objects, per_object):
+            _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
+
+        materials = _material_copies(objects, new_image, uv_name, created) if settings.use_material_copy else []
+        saved = _save_or_pack(new_image, output_dir)
+        times["total"] = time.perf_counter() - started
+
+        report = {
+            "objects": [obj.name for obj in objects],
+            "faces": int(m),
+            "vertices": int(len(V)),
+            "epsilon": settings.epsilon,
+            "target_cost": settings.target_cost if settings.resolution is None else None,
+            "resolution": int(resolution),
+            "input_resolution": [int(width), int(height)],
+            "relative_cost": texel_cost.relative_cost(uv_out, resolution, reference_uv=uv_in,
+                                                      reference_resolution=(width, height)),
+            "times_s": {key: round(value, 3) for key, value in times.items()},
+            "flipped_triangles": int(meshwise.flipped),
+            "triangles_within_bound": float(np.mean(losses <= settings.epsilon)),
+            "uv_map": uv_name,
+            "source_uv_map": source_uv,
+            "image": new_image.name,
+            "image_file": saved,
+            "materials": [material.name for material in materials],
+            "seed": settings.seed,
+            "evaluations_per_triangle": settings.iterations,
+        }
+        yield Progress("done", 1, 1, "Done")
+        return PipelineResult(uv_map=uv_name, image=new_image, materials=materials, report=report)
+    except BaseException:
+        created.remove_all()
+        raise
+
+
+def _relay(stage, name, label, started):
+    """Re-yield a core stage's (done, total) progress as Progress with a time-left estimate."""
+    while True:
+        try:
+            done, total = next(stage)
+        except StopIteration as finished:
+            return finished.value
+        elapsed = time.perf_counter() - started
+        left = f", about {elapsed / done * (total - done):.0f} s left" if done else ""
+        yield Progress(name, done, total, f"{label}: {done}/{total}{left}")
+
+
+def _pack(objects, mesh, uv_name, input_size, settings, pack_uv_layer):
+    """Pack, then pick the resolution; packs again when the margin in pixels came out more than 1 px off."""
+    # First guess: the input's packing efficiency, i.e. r ~ sqrt(c_r) r_hat (Eq. 21 with equal UV areas).
+    guess = settings.resolution or max(8.0, np.sqrt(settings.target_cost) * max(input_size))
+    margin_fraction = settings.margin / guess
+    for attempt in range(3):
+        pack_uv_layer(objects, uv_name, margin_fraction=margin_fraction)
+        if settings.resolution is not None:
+            return settings.resolution
+        uv_out = _read_packed(objects, mesh, uv_name)
+        resolution = texel_cost.resolution_for_cost(uv_out, settings.target_cost, reference_uv=mesh.uv,
+                                                    reference_resolution=input_size, minimum=8)
+        if abs(margin_fraction * resolution - settings.margin) <= 1:
+            return resolution
+        margin_fraction = settings.margin / resolution
+    return resolution
+
+
+def _read_packed(objects, mesh, uv_name):
+    """The packed UV map per triangle corner, in the order of ``mesh``'s triangles."""
+    uv = np.empty_like(mesh.uv)
+    for index, obj in enumerate(objects):
+        rows = mesh.object_index == index
+        per_loop = np.empty(2 * len(obj.data.loops), dtype=np.float64)
+        obj.data.uv_layers[uv_name].uv.foreach_get("vector", per_loop)
+        uv[rows] = per_loop.reshape(-1, 2)[mesh.tri_loops[rows]]
+    return uv
+
+
+def run_to_end(generator):
+    """Drive a pipeline generator to completion and return its result."""
+    while True:
+        try:
+            next(generator)
+        except StopIteration as finished:
+            return finished.value
