@@ -205,7 +205,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         Mesh objects whose base colour comes from the same image (one object, or several sharing an atlas).
     settings : perceptual_uv.core.settings.OptimizeSettings
     source_uv : str, optional
-        Name of the input UV map; default the UV map used for rendering (active render) of each mesh.
+        Name of the input UV map; default the active UV map of the first object.
     output_dir : str, optional
         Folder for the new image; default next to the .blend, or packed when the file is unsaved.
 
@@ -238,7 +238,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         if problem:
             raise ValueError(problem)
     if source_uv is None:
-        source_uv = next(layer.name for layer in objects[0].data.uv_layers if layer.active_render)
+        source_uv = objects[0].data.uv_layers.active.name
     for obj in objects:
         if source_uv not in obj.data.uv_layers:
             raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}'")

@@ -1,0 +1,163 @@
+"""Optimize UVs end to end on a patch of the bundled model, with fast settings (issue 5, item 8)."""
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+bmesh = pytest.importorskip("bmesh")
+
+import perceptual_uv  # noqa: E402
+from perceptual_uv.bridge.pipeline import LOSS_ATTRIBUTE, optimize_objects  # noqa: E402
+from perceptual_uv.core.cost import relative_cost  # noqa: E402
+from perceptual_uv.core.settings import OptimizeSettings  # noqa: E402
+
+from conftest import reset_blender_scene  # noqa: E402  (tests/ is on sys.path under pytest)
+
+pytestmark = pytest.mark.bpy
+FAST = dict(iterations=10, screen_pixels=32, workers=1, target_cost=0.3)
+ID_KINDS = ("objects", "meshes", "materials", "images", "scenes")
+
+
+def spot_patch(spot_obj, *, above=0.9):
+    """The bundled spot cut to the faces above a height: a real textured patch of ~700 triangles."""
+    reset_blender_scene()
+    bpy.ops.wm.obj_import(filepath=str(spot_obj))
+    obj = bpy.context.selected_objects[0]
+    bm = bmesh.new()
+    bm.from_mesh(obj.data)
+    bmesh.ops.delete(bm, geom=[f for f in bm.faces if f.calc_center_median().z < above], context="FACES")
+    bm.to_mesh(obj.data)
+    bm.free()
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+    return obj
+
+
+def snapshot(obj):
+    mesh = obj.data
+    uv = np.empty(2 * len(mesh.loops), dtype=np.float32)
+    mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv)
+    co = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+    mesh.vertices.foreach_get("co", co)
+    image = bpy.data.images["spot_texture.png"]
+    pixels = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    return {"uv": uv, "co": co, "pixels": pixels, "uv_layers": [layer.name for layer in mesh.uv_layers],
+            "attributes": sorted(a.name for a in mesh.attributes),
+            "materials": [slot.material.name for slot in obj.material_slots],
+            "ids": {kind: len(getattr(bpy.data, kind)) for kind in ID_KINDS}}
+
+
+def assert_unchanged(obj, before):
+    after = snapshot(obj)
+    for key in ("uv", "co", "pixels"):
+        np.testing.assert_array_equal(after[key], before[key])
+    for key in ("uv_layers", "attributes", "materials", "ids"):
+        assert after[key] == before[key], key
+
+
+@pytest.fixture(scope="module")
+def registered():
+    perceptual_uv.register()
+    yield
+    perceptual_uv.unregister()
+
+
+@pytest.fixture(scope="module")
+def optimized(registered, spot_obj):
+    obj = spot_patch(spot_obj)
+    before = snapshot(obj)
+    bpy.ops.ed.undo_push(message="before Optimize UVs")
+    # The second argument asks for the undo push that a click in the UI makes.
+    result = bpy.ops.uv.perceptual_optimize("EXEC_DEFAULT", True, **FAST)
+    return obj, before, result
+
+
+def test_operator_adds_uv_map_image_and_loss_attribute(optimized):
+    obj, before, result = optimized
+    assert result == {"FINISHED"}
+    mesh = obj.data
+    assert [layer.name for layer in mesh.uv_layers] == ["UVMap", "PerceptualUV"]
+    assert mesh.uv_layers.active.name == "UVMap"
+    image = bpy.data.images["spot_texture_perceptual"]
+    assert image.size[0] == image.size[1] and image.size[0] >= 8
+    assert image.packed_file is not None  # the file is unsaved: the image travels inside it
+    assert LOSS_ATTRIBUTE in mesh.attributes
+    losses = np.empty(len(mesh.polygons), dtype=np.float32)
+    mesh.attributes[LOSS_ATTRIBUTE].data.foreach_get("value", losses)
+    assert np.all(losses >= 0) and np.all(np.isfinite(losses))
+    slot = obj.material_slots[0]
+    assert slot.link == "OBJECT" and slot.material.name == "spot_perceptual"
+    assert mesh.materials[0].name == "spot"  # the mesh's own material list is untouched
+
+
+def test_originals_are_bit_identical(optimized):
+    obj, before, _ = optimized
+    after = snapshot(obj)
+    for key in ("uv", "co", "pixels"):
+        np.testing.assert_array_equal(after[key], before[key])
+    assert bpy.data.images["spot_texture.png"].colorspace_settings.name == "sRGB"
+    assert bpy.data.materials["spot"].node_tree.nodes["Image Texture"].image.name == "spot_texture.png"
+
+
+def test_new_uv_map_is_packed_and_meets_the_cost(optimized):
+    obj, before, _ = optimized
+    mesh = obj.data
+    mesh.calc_loop_triangles()
+    loops = np.empty(3 * len(mesh.loop_triangles), dtype=np.int32)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    per_loop = {}
+    for name in ("UVMap", "PerceptualUV"):
+        uv = np.empty(2 * len(mesh.loops))
+        mesh.uv_layers[name].uv.foreach_get("vector", uv)
+        per_loop[name] = uv.reshape(-1, 2)[loops.reshape(-1, 3)]
+    new = per_loop["PerceptualUV"]
+    assert new.min() >= 0 and new.max() <= 1
+    r = bpy.data.images["spot_texture_perceptual"].size[0]
+    cost = relative_cost(new, r, reference_uv=per_loop["UVMap"], reference_resolution=1024)
+    assert abs(cost - FAST["target_cost"]) <= 0.05 * FAST["target_cost"]
+
+
+def test_undo_restores_the_file(optimized):
+    obj, before, _ = optimized
+    bpy.ops.ed.undo()
+    obj = bpy.data.objects["spot_triangulated"]
+    assert_unchanged(obj, before)
+
+
+STAGES = ("read", "triangle", "mesh", "pack", "bake", "loss", "done")
+
+
+@pytest.mark.parametrize("stages", [
+    ("triangle", "done"),  # before anything is written; after everything is
+    pytest.param(STAGES, marks=pytest.mark.slow),
+])
+def test_cancel_leaves_nothing(registered, spot_obj, stages):
+    obj = spot_patch(spot_obj, above=1.0)
+    before = snapshot(obj)
+    stages_seen = []
+    for cancel_at in stages:
+        run = optimize_objects([obj], OptimizeSettings(**FAST))
+        for progress in run:
+            if progress.stage == cancel_at:
+                stages_seen.append(cancel_at)
+                break
+        run.close()
+        assert_unchanged(obj, before)
+    assert tuple(stages_seen) == stages
+
+
+def test_report_fields(registered, spot_obj, tmp_path):
+    from perceptual_uv.bridge.pipeline import run_to_end
+
+    obj = spot_patch(spot_obj, above=1.0)
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path)))
+    report = result.report
+    for key in ("faces", "vertices", "epsilon", "target_cost", "resolution", "relative_cost", "times_s",
+                "flipped_triangles", "triangles_within_bound", "uv_map", "image"):
+        assert key in report
+    assert set(report["times_s"]) == {"triangle", "mesh", "pack", "bake", "total"}
+    assert report["faces"] == len(obj.data.loop_triangles)
+    assert report["flipped_triangles"] == 0
+    assert 0 <= report["triangles_within_bound"] <= 1
+    assert abs(report["relative_cost"] - 0.3) <= 0.015
+    assert (tmp_path / "spot_texture_perceptual.png").is_file() and report["image_file"].startswith(str(tmp_path))
