@@ -1,5 +1,7 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """core.ssp (Sander et al. 2002): metric tensors, expected stretch, SSP solve and SSPOP targets."""
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -243,3 +245,44 @@ def test_sspop_through_the_mesh_wise_solver_matches_ssp_on_free_triangles():
     result = meshwise.solve_meshwise(F, uv, params, w_R, w_S)
     assert result.flipped == 0
     assert ssp_energy(V, F, result.uv, metric) == pytest.approx(_lower_bound(metric, area), rel=1e-6)
+
+
+# --- the bundled spot model -----------------------------------------------------------------------------------
+
+SPOT = pathlib.Path(__file__).resolve().parent / "data" / "spot"
+
+
+def _load_spot():
+    """Minimal OBJ reader (v, vt, triangles ``f v/vt``) and the PNG texture with row 0 at the bottom."""
+    matplotlib_image = pytest.importorskip("matplotlib.image")
+    positions, texcoords, faces, face_texcoords = [], [], [], []
+    for line in (SPOT / "spot_triangulated.obj").read_text().splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            positions.append([float(x) for x in parts[1:4]])
+        elif parts[0] == "vt":
+            texcoords.append([float(x) for x in parts[1:3]])
+        elif parts[0] == "f":
+            faces.append([int(p.split("/")[0]) - 1 for p in parts[1:]])
+            face_texcoords.append([int(p.split("/")[1]) - 1 for p in parts[1:]])
+    texture = matplotlib_image.imread(SPOT / "spot_texture.png")[::-1]
+    return (np.array(positions), np.array(faces, dtype=np.int64), np.array(texcoords)[np.array(face_texcoords)],
+            np.ascontiguousarray(texture[..., :3], dtype=np.float64))
+
+
+@pytest.mark.slow
+def test_ssp_and_sspop_on_spot_lower_signal_stretch_flip_free():
+    meshwise = pytest.importorskip("perceptual_uv.core.meshwise")
+    V, F, uv, texture = _load_spot()
+    metric = signal_metric_tensors(V, F, uv, texture)
+    result = solve_ssp(V, F, uv, metric=metric, max_iterations=300)
+    before = result.energy_history[0]
+    assert result.flipped == 0 and np.all(np.sign(_uv_det(result.uv)) == np.sign(_uv_det(uv)))
+    assert result.energy_history[-1] < 0.1 * before
+    assert uv_topology(F, result.uv).n_charts == uv_topology(F, uv).n_charts
+    params, w_R, w_S = ssp_targets(V, F, uv, metric=metric)
+    sspop = meshwise.solve_meshwise(F, uv, params, w_R, w_S, max_iterations=100)
+    assert sspop.flipped == 0
+    assert ssp_energy(V, F, sspop.uv, result.metric) < 0.25 * before
