@@ -138,9 +138,18 @@ def _run(args):
     return evaluate_file(args)
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(argv=None):
     """Run the CLI; returns the process exit code."""
+    import signal
+    import threading
+
     argv = sys.argv[1:] if argv is None else list(argv)
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _interrupt)  # a batch system's stop cleans up like Ctrl-C
     try:
         args = parse_args(argv)
         _run(args)

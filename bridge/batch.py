@@ -63,9 +63,10 @@ def _export_glb(objects, result, path):
     """Export ``objects`` with the new UV map as their only texture coordinates and the new image."""
     for obj in objects:
         layers = obj.data.uv_layers
-        for layer in list(layers):
-            if layer.name != result.uv_map:
-                layers.remove(layer)  # this batch session's copy of the data only; the input file is untouched
+        # This batch session's copy of the data only; the input file is untouched. Removing a layer
+        # invalidates the others' Python references, so go by name.
+        for name in [layer.name for layer in layers if layer.name != result.uv_map]:
+            layers.remove(layers[name])
         layers[result.uv_map].active = True
         layers[result.uv_map].active_render = True
     for obj in bpy.context.view_layer.objects:
