@@ -6,6 +6,8 @@ Sun et al. 2022, Eq. 20 (cost ``c = r^2 sum |tri^t|``) and Eq. 21 (relative cost
 """
 import numpy as np
 
+from .charts import signed_uv_areas
+
 __all__ = ["uv_area", "texel_cost", "relative_cost", "resolution_for_cost"]
 
 
@@ -26,9 +28,7 @@ def uv_area(uv):
     uv = np.asarray(uv, dtype=np.float64)
     if uv.ndim != 3 or uv.shape[1:] != (3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2), got {uv.shape}")
-    e1 = uv[:, 1] - uv[:, 0]
-    e2 = uv[:, 2] - uv[:, 0]
-    return float(0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())
+    return float(np.abs(signed_uv_areas(uv)).sum())
 
 
 def _pixel_count(resolution):
