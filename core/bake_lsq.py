@@ -100,29 +100,41 @@ def _solve_normal_equations(ids, weights, target, count, ridge):
                     env[base + ib] += wa * weights[p, b]
     for i in range(count):
         env[offset[i + 1] - 1] += ridge
-    # Row-oriented envelope Cholesky, in place: L[i, j] lives at env[offset[i] + j - first[i]].
+    _envelope_cholesky_solve(env, offset, first, rhs)
+    return rhs
+
+
+@njit(fastmath=True)
+def _envelope_cholesky_solve(env, offset, first, rhs):
+    """Numba: factorize the envelope matrix in place (``L L^T``) and overwrite ``rhs`` with the solution.
+
+    Row ``i`` holds columns ``first[i]..i`` at ``env[offset[i]:offset[i + 1]]``. ``fastmath`` lets the dot
+    products vectorize (their summation order changes at round-off level only).
+    """
+    count = rhs.shape[0]
+    # Row-oriented envelope Cholesky: L[i, j] lives at env[offset[i] + j - first[i]].
     for i in range(count):
         fi = first[i]
         bi = offset[i] - fi
         for j in range(fi, i):
             fj = first[j]
             bj = offset[j] - fj
-            s = env[bi + j]
+            s = 0.0
             for k in range(max(fi, fj), j):
-                s -= env[bi + k] * env[bj + k]
-            env[bi + j] = s / env[offset[j + 1] - 1]
-        s = env[bi + i]
+                s += env[bi + k] * env[bj + k]
+            env[bi + j] = (env[bi + j] - s) / env[offset[j + 1] - 1]
+        s = 0.0
         for k in range(fi, i):
-            s -= env[bi + k] * env[bi + k]
-        env[bi + i] = np.sqrt(s)
+            s += env[bi + k] * env[bi + k]
+        env[bi + i] = np.sqrt(env[bi + i] - s)
     # Forward substitution L y = rhs, then back substitution L^T x = y (column sweep).
     for i in range(count):
         fi = first[i]
         bi = offset[i] - fi
-        s = rhs[i]
+        s = 0.0
         for k in range(fi, i):
-            s -= env[bi + k] * rhs[k]
-        rhs[i] = s / env[bi + i]
+            s += env[bi + k] * rhs[k]
+        rhs[i] = (rhs[i] - s) / env[bi + i]
     for i in range(count - 1, -1, -1):
         fi = first[i]
         bi = offset[i] - fi
@@ -130,7 +142,6 @@ def _solve_normal_equations(ids, weights, target, count, ridge):
         rhs[i] = xi
         for k in range(fi, i):
             rhs[k] -= env[bi + k] * xi
-    return rhs
 
 
 @njit

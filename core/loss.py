@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._jit import njit
-from .bake_lsq import DEFAULT_RIDGE, _first_occurrence_ids, _render_ids, _solve_normal_equations
+from .bake_lsq import (DEFAULT_RIDGE, _envelope_cholesky_solve, _envelope_first, _first_occurrence_ids, _render_ids,
+                       _solve_normal_equations)
 from .camera import triangle_cameras
 from .gmsd import GMSD_C, _gmsd_gradient_kernel, _pooled_gradient_kernel, luma as _to_luma
 from .one_ring import one_ring_faces
@@ -201,11 +202,236 @@ def _deformed_ids(points, a00, a01, a10, a11, cx, cy, w, h):
 
 
 @njit
-def _evaluate_kernel(params, points, pixel, reference, reference_gradient, centre, w, h, n, ridge, c_gmsd):
+def _envelope_cost(cell_tex, count):
+    """Envelope first columns of an ordering and the Cholesky work estimate ``sum (i - first[i])^2``."""
+    first = _envelope_first(cell_tex, count)
+    cost = 0
+    for i in range(count):
+        cost += (i - first[i]) * (i - first[i])
+    return first, cost
+
+
+@njit(inline="always")
+def _add_off_diagonal(env, offset, first, i, j, value):
+    if j > i:
+        i, j = j, i
+    env[offset[i] - first[i] + j] += value
+
+
+@njit
+def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, h, ridge, rendered):
+    """Numba: deform, re-bake (Eq. 11) and re-render in one sweep; False if the caller must fall back.
+
+    Pixels whose deformed points fall in the same texel cell (same 4 texels) are pooled first: each cell
+    keeps the sums of its 10 weight products and 4 weighted targets, so the normal equations are assembled
+    from cells instead of pixels (magnified footprints have ~10-20 pixels per cell). Texels are numbered
+    row by row along the shorter side of their bounding box, or in the order the pixels first read them,
+    whichever gives the smaller envelope (the first suits compact footprints, the second minified ones where
+    pixels read disjoint texel groups). Falls back when the footprint's box could alias under REPEAT
+    wrapping or is much larger than the pixel count.
+    """
+    count = points.shape[0]
+    # Conservative box of the deformed continuous coordinates from the corners of the input box.
+    xlo = ylo = np.inf
+    xhi = yhi = -np.inf
+    for corner in range(4):
+        dx = (box[1] if corner & 1 else box[0]) - cx
+        dy = (box[3] if corner & 2 else box[2]) - cy
+        x = a00 * dx + a01 * dy + cx - 0.5
+        y = a10 * dx + a11 * dy + cy - 0.5
+        xlo = min(xlo, x)
+        xhi = max(xhi, x)
+        ylo = min(ylo, y)
+        yhi = max(yhi, y)
+    if not (xhi - xlo < w - 4 and yhi - ylo < h - 4):
+        return False
+    ox = int(np.floor(xlo)) - 1  # one cell of slack for round-off
+    oy = int(np.floor(ylo)) - 1
+    width = int(np.floor(xhi)) - ox + 2
+    height = int(np.floor(yhi)) - oy + 2
+    if width + 1 > w or height + 1 > h or width * height > 16 * count + 4096:
+        return False
+    grid = np.full(width * height, -1, np.int64)
+    cell_pos = np.empty(count, np.int64)
+    acc = np.empty((count, 14))
+    pix_cell = np.empty(count, np.int64)
+    frac = np.empty((count, 2))
+    n_cells = 0
+    last_cell = -1
+    c = -1
+    # Runs of pixels in one cell are summed in registers and flushed when the cell changes.
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
+    for p in range(count + 1):
+        if p < count:
+            dx = points[p, 0] - cx
+            dy = points[p, 1] - cy
+            x = a00 * dx + a01 * dy + cx - 0.5
+            y = a10 * dx + a11 * dy + cy - 0.5
+            x0 = np.floor(x)
+            y0 = np.floor(y)
+            fx = x - x0
+            fy = y - y0
+            gx = int(x0) - ox
+            gy = int(y0) - oy
+            if gx < 0 or gy < 0 or gx >= width or gy >= height:
+                return False
+            cell = gy * width + gx
+        else:
+            cell = -2
+        if cell != last_cell:
+            if c >= 0:
+                acc[c, 0] += s0
+                acc[c, 1] += s1
+                acc[c, 2] += s2
+                acc[c, 3] += s3
+                acc[c, 4] += s4
+                acc[c, 5] += s5
+                acc[c, 6] += s6
+                acc[c, 7] += s7
+                acc[c, 8] += s8
+                acc[c, 9] += s9
+                acc[c, 10] += s10
+                acc[c, 11] += s11
+                acc[c, 12] += s12
+                acc[c, 13] += s13
+                s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
+            if p == count:
+                break
+            c = grid[cell]
+            if c < 0:
+                c = n_cells
+                grid[cell] = c
+                cell_pos[c] = cell
+                acc[c, :] = 0.0
+                n_cells += 1
+            last_cell = cell
+        w0 = (1.0 - fx) * (1.0 - fy)
+        w1 = fx * (1.0 - fy)
+        w2 = (1.0 - fx) * fy
+        w3 = fx * fy
+        t = reference[p]
+        s0 += w0 * w0
+        s1 += w1 * w1
+        s2 += w2 * w2
+        s3 += w3 * w3
+        s4 += w0 * w1
+        s5 += w0 * w2
+        s6 += w0 * w3
+        s7 += w1 * w2
+        s8 += w1 * w3
+        s9 += w2 * w3
+        s10 += w0 * t
+        s11 += w1 * t
+        s12 += w2 * t
+        s13 += w3 * t
+        pix_cell[p] = c
+        frac[p, 0] = fx
+        frac[p, 1] = fy
+    # Texels touched, numbered along the shorter side of the texel box (ordering A).
+    tw = width + 1
+    th = height + 1
+    tgrid = np.full(tw * th, -1, np.int64)
+    for c in range(n_cells):
+        cell = cell_pos[c]
+        t0 = (cell // width) * tw + cell % width
+        tgrid[t0] = -2
+        tgrid[t0 + 1] = -2
+        tgrid[t0 + tw] = -2
+        tgrid[t0 + tw + 1] = -2
+    n_tex = 0
+    if tw <= th:
+        for t in range(tw * th):
+            if tgrid[t] == -2:
+                tgrid[t] = n_tex
+                n_tex += 1
+    else:
+        for tx in range(tw):
+            for ty in range(th):
+                t = ty * tw + tx
+                if tgrid[t] == -2:
+                    tgrid[t] = n_tex
+                    n_tex += 1
+    cell_tex = np.empty((n_cells, 4), np.int64)
+    for c in range(n_cells):
+        cell = cell_pos[c]
+        t0 = (cell // width) * tw + cell % width
+        cell_tex[c, 0] = tgrid[t0]
+        cell_tex[c, 1] = tgrid[t0 + 1]
+        cell_tex[c, 2] = tgrid[t0 + tw]
+        cell_tex[c, 3] = tgrid[t0 + tw + 1]
+    first, cost = _envelope_cost(cell_tex, n_tex)
+    # Ordering B: first read.
+    renumber = np.full(n_tex, -1, np.int64)
+    n_b = 0
+    for c in range(n_cells):
+        for k in range(4):
+            a = cell_tex[c, k]
+            if renumber[a] < 0:
+                renumber[a] = n_b
+                n_b += 1
+    cell_tex_b = np.empty((n_cells, 4), np.int64)
+    for c in range(n_cells):
+        for k in range(4):
+            cell_tex_b[c, k] = renumber[cell_tex[c, k]]
+    first_b, cost_b = _envelope_cost(cell_tex_b, n_tex)
+    if cost_b < cost:
+        cell_tex = cell_tex_b
+        first = first_b
+    # Normal equations from the cells, then the envelope Cholesky solve.
+    offset = np.empty(n_tex + 1, np.int64)
+    offset[0] = 0
+    for i in range(n_tex):
+        offset[i + 1] = offset[i] + (i - first[i] + 1)
+    env = np.zeros(offset[n_tex])
+    rhs = np.zeros(n_tex)
+    for c in range(n_cells):
+        for k in range(4):
+            i = cell_tex[c, k]
+            env[offset[i + 1] - 1] += acc[c, k]
+            rhs[i] += acc[c, 10 + k]
+        t0, t1, t2, t3 = cell_tex[c, 0], cell_tex[c, 1], cell_tex[c, 2], cell_tex[c, 3]
+        _add_off_diagonal(env, offset, first, t0, t1, acc[c, 4])
+        _add_off_diagonal(env, offset, first, t0, t2, acc[c, 5])
+        _add_off_diagonal(env, offset, first, t0, t3, acc[c, 6])
+        _add_off_diagonal(env, offset, first, t1, t2, acc[c, 7])
+        _add_off_diagonal(env, offset, first, t1, t3, acc[c, 8])
+        _add_off_diagonal(env, offset, first, t2, t3, acc[c, 9])
+    for i in range(n_tex):
+        env[offset[i + 1] - 1] += ridge
+    _envelope_cholesky_solve(env, offset, first, rhs)
+    cell_value = np.empty((n_cells, 4))
+    for c in range(n_cells):
+        for k in range(4):
+            cell_value[c, k] = rhs[cell_tex[c, k]]
+    for p in range(count):
+        c = pix_cell[p]
+        fx = frac[p, 0]
+        fy = frac[p, 1]
+        rendered[p] = ((1.0 - fx) * ((1.0 - fy) * cell_value[c, 0] + fy * cell_value[c, 2])
+                       + fx * ((1.0 - fy) * cell_value[c, 1] + fy * cell_value[c, 3]))
+    return True
+
+
+@njit
+def _points_box(points):
+    box = np.array([np.inf, -np.inf, np.inf, -np.inf])
+    for p in range(points.shape[0]):
+        box[0] = min(box[0], points[p, 0])
+        box[1] = max(box[1], points[p, 0])
+        box[2] = min(box[2], points[p, 1])
+        box[3] = max(box[3], points[p, 1])
+    return box
+
+
+@njit
+def _evaluate_kernel(params, points, pixel, reference, reference_gradient, centre, w, h, n, ridge, c_gmsd,
+                     use_cells):
     k = params.shape[0]
     out = np.empty(k)
     m = n // 2
     gradient = np.empty((m, m))
+    box = _points_box(points)
+    rendered = np.empty(points.shape[0])
     for s in range(k):
         alpha, l1, l2, beta = params[s, 0], params[s, 1], params[s, 2], params[s, 3]
         ca, sa = np.cos(alpha), np.sin(alpha)
@@ -217,9 +443,12 @@ def _evaluate_kernel(params, points, pixel, reference, reference_gradient, centr
         a01 = ca * s01 - sa * s11
         a10 = sa * s00 + ca * s01
         a11 = sa * s01 + ca * s11
-        ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1], w, h)
-        values = _solve_normal_equations(ids, weights, reference, texel.shape[0], ridge)
-        rendered = _render_ids(ids, weights, values)
+        done = points.shape[0] > 0 and use_cells and _rebake_render_cells(
+            points, reference, box, a00, a01, a10, a11, centre[0], centre[1], w, h, ridge, rendered)
+        if not done:
+            ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1], w, h)
+            values = _solve_normal_equations(ids, weights, reference, texel.shape[0], ridge)
+            rendered[:] = _render_ids(ids, weights, values)
         image = np.zeros(n * n)
         for p in range(pixel.shape[0]):
             image[pixel[p]] = rendered[p]
@@ -295,7 +524,7 @@ class TriangleProblem:
                 return np.zeros(len(params))
         h, w = self.texture_shape
         return _evaluate_kernel(params, self.points, self.pixel, self.reference, self.reference_gradient,
-                                self.centre, w, h, self.screen_pixels, self.ridge, GMSD_C)
+                                self.centre, w, h, self.screen_pixels, self.ridge, GMSD_C, True)
 
     def reference_image(self):
         """(n, n) reference luma screen, row 0 = bottom of the view, 0 where nothing is hit."""
