@@ -141,6 +141,16 @@ def dodecahedron_cameras(V, *, distance_factor=2.5, margin=1.05, world_up=(0.0, 
     ``asin(rho / d)``: ``fov = 2 * atan(margin * tan(asin(rho / d)))``. An orthographic camera frames it with
     ``ortho_scale = 2 * margin * rho``. The clip range is ``[d - rho, d + rho]`` widened by 1 %.
 
+    Examples
+    --------
+    With the bridge's renderer (checked on the spot model: 20 perspective and 20 orthographic views of
+    128 px, the mesh never touches the image border):
+
+    >>> cams = dodecahedron_cameras(V)                                    # doctest: +SKIP
+    >>> views = [Camera(position=p, look_at=cams.look_at, up=u, fov_degrees=cams.fov_degrees,
+    ...                 clip_start=cams.clip_start, clip_end=cams.clip_end)
+    ...          for p, u in zip(cams.positions, cams.up)]                 # doctest: +SKIP
+
     References
     ----------
     Sun et al. 2022, Sec. 5.1, Eq. 22-23 ("20 cameras located at the vertices of a regular dodecahedron and
