@@ -22,6 +22,7 @@ For triangle ``i`` and a deformation ``(alpha, lambda1, lambda2, beta)`` (Eq. 13
 Performance: everything per evaluation runs in one numba kernel; the per-triangle cache holds arrays only
 (picklable; numba kernels are module functions), about 100 KB per triangle at 64 px.
 """
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,7 +31,7 @@ from ._jit import njit
 from .bake_lsq import (DEFAULT_RIDGE, _envelope_cholesky_solve, _envelope_first, _first_occurrence_ids, _render_ids,
                        _solve_normal_equations)
 from .camera import triangle_cameras
-from .gmsd import GMSD_C, _gmsd_gradient_kernel, _pooled_gradient_kernel, luma as _to_luma
+from .gmsd import GMSD_C, _gmsd_padded_pooled_kernel, _pooled_gradient_kernel, luma as _to_luma
 from .one_ring import one_ring_faces
 from .raster import _rasterize_kernel, rasterize, sample_bilinear, texel_coordinates
 
@@ -412,26 +413,29 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
     return True
 
 
-@njit
+def _pooled_index(pixel, n):
+    """Pixel (i, j) adds a quarter of its value to pooled texel (i // 2, j // 2) of an (n/2 + 2)^2 map with a
+    zero border: its flat index there."""
+    i, j = np.divmod(pixel, n)
+    return ((i // 2 + 1) * (n // 2 + 2) + j // 2 + 1).astype(np.int64)
+
+
 def _points_box(points):
-    box = np.array([np.inf, -np.inf, np.inf, -np.inf])
-    for p in range(points.shape[0]):
-        box[0] = min(box[0], points[p, 0])
-        box[1] = max(box[1], points[p, 0])
-        box[2] = min(box[2], points[p, 1])
-        box[3] = max(box[3], points[p, 1])
-    return box
+    if len(points) == 0:
+        return np.zeros(4)
+    return np.array([points[:, 0].min(), points[:, 0].max(), points[:, 1].min(), points[:, 1].max()])
 
 
 @njit
-def _evaluate_kernel(params, points, pixel, reference, reference_gradient, centre, w, h, n, ridge, c_gmsd,
-                     use_cells):
+def _evaluate_kernel(params, points, pooled_index, box, reference, reference_gradient, centre, w, h, ridge,
+                     c_gmsd, use_cells):
     k = params.shape[0]
     out = np.empty(k)
-    m = n // 2
-    gradient = np.empty((m, m))
-    box = _points_box(points)
-    rendered = np.empty(points.shape[0])
+    m = reference_gradient.shape[0]
+    count = points.shape[0]
+    rendered = np.empty(count)
+    padded = np.empty((m + 2) * (m + 2))
+    gms = np.empty(m * m)
     for s in range(k):
         alpha, l1, l2, beta = params[s, 0], params[s, 1], params[s, 2], params[s, 3]
         ca, sa = np.cos(alpha), np.sin(alpha)
@@ -443,17 +447,16 @@ def _evaluate_kernel(params, points, pixel, reference, reference_gradient, centr
         a01 = ca * s01 - sa * s11
         a10 = sa * s00 + ca * s01
         a11 = sa * s01 + ca * s11
-        done = points.shape[0] > 0 and use_cells and _rebake_render_cells(
+        done = count > 0 and use_cells and _rebake_render_cells(
             points, reference, box, a00, a01, a10, a11, centre[0], centre[1], w, h, ridge, rendered)
         if not done:
             ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1], w, h)
             values = _solve_normal_equations(ids, weights, reference, texel.shape[0], ridge)
             rendered[:] = _render_ids(ids, weights, values)
-        image = np.zeros(n * n)
-        for p in range(pixel.shape[0]):
-            image[pixel[p]] = rendered[p]
-        _pooled_gradient_kernel(image.reshape(n, n), gradient)
-        out[s] = _gmsd_gradient_kernel(reference_gradient, gradient, c_gmsd)
+        padded[:] = 0.0
+        for p in range(count):
+            padded[pooled_index[p]] += 0.25 * rendered[p]
+        out[s] = _gmsd_padded_pooled_kernel(padded.reshape(m + 2, m + 2), reference_gradient, c_gmsd, gms)
     return out
 
 
@@ -499,6 +502,15 @@ class TriangleProblem:
     uv_area: float
     is_constant: bool
     ridge: float = DEFAULT_RIDGE
+    pooled_index: np.ndarray = dataclasses.field(default=None, repr=False)
+    box: np.ndarray = dataclasses.field(default=None, repr=False)
+
+    def __post_init__(self):
+        # Derived caches of the kernel (cheap; not needed in a pickle but harmless there).
+        if self.pooled_index is None:
+            object.__setattr__(self, "pooled_index", _pooled_index(self.pixel, self.screen_pixels))
+        if self.box is None:
+            object.__setattr__(self, "box", _points_box(self.points))
 
     def evaluate(self, params):
         """Perceptual loss E for deformations of this triangle.
@@ -523,8 +535,8 @@ class TriangleProblem:
             if within.all():
                 return np.zeros(len(params))
         h, w = self.texture_shape
-        return _evaluate_kernel(params, self.points, self.pixel, self.reference, self.reference_gradient,
-                                self.centre, w, h, self.screen_pixels, self.ridge, GMSD_C, True)
+        return _evaluate_kernel(params, self.points, self.pooled_index, self.box, self.reference,
+                                self.reference_gradient, self.centre, w, h, self.ridge, GMSD_C, True)
 
     def reference_image(self):
         """(n, n) reference luma screen, row 0 = bottom of the view, 0 where nothing is hit."""
@@ -582,6 +594,15 @@ class TriangleBatch:
     uv_area: np.ndarray
     is_constant: np.ndarray
     ridge: float = DEFAULT_RIDGE
+    pooled_index: np.ndarray = dataclasses.field(default=None, repr=False)
+    box: np.ndarray = dataclasses.field(default=None, repr=False)
+
+    def __post_init__(self):
+        if self.pooled_index is None:
+            object.__setattr__(self, "pooled_index", _pooled_index(self.pixel, self.screen_pixels))
+        if self.box is None:
+            object.__setattr__(self, "box", np.array([_points_box(self.points[lo:hi]) for lo, hi in
+                                                      zip(self.offsets[:-1], self.offsets[1:])]).reshape(-1, 4))
 
     def __len__(self):
         return len(self.faces)
@@ -595,7 +616,7 @@ class TriangleBatch:
         return TriangleProblem(int(self.faces[i]), self.screen_pixels, self.texture_shape, self.centre[i],
                                self.pixel[lo:hi], self.points[lo:hi], self.reference[lo:hi],
                                self.reference_gradient[i], float(self.uv_area[i]), bool(self.is_constant[i]),
-                               self.ridge)
+                               self.ridge, self.pooled_index[lo:hi], self.box[i])
 
     def __iter__(self):
         return (self[i] for i in range(len(self)))

@@ -210,8 +210,8 @@ def test_cell_path_and_pixel_path_agree(textured):
     problem = loss.triangle_problem(V, F, uv, texture, face)
     params = np.vstack([IDENTITY, random_params(np.random.default_rng(8), 6)])
     h, w = problem.texture_shape
-    args = (params, problem.points, problem.pixel, problem.reference, problem.reference_gradient,
-            problem.centre, w, h, problem.screen_pixels, problem.ridge, loss.GMSD_C)
+    args = (params, problem.points, problem.pooled_index, problem.box, problem.reference,
+            problem.reference_gradient, problem.centre, w, h, problem.ridge, loss.GMSD_C)
     np.testing.assert_allclose(loss._evaluate_kernel(*args, True), loss._evaluate_kernel(*args, False),
                                rtol=1e-7, atol=1e-12)
 
