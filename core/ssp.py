@@ -27,7 +27,7 @@ i.e. stretch ``lambda_i = c sqrt(g_i) (g1 g2)^(-1/8)`` along the eigenvector ``t
 texels across the direction in which the signal changes) and UV area density ``c^2 (g1 g2)^(1/4)``.
 
 Constant signal. Where ``Gamma = 0`` the pure signal stretch lets a triangle collapse (no error at any
-size). As SGSH02 note for constant regions, some geometric stretch must be blended in; we add
+size), so some geometric stretch must be blended in (our choice of regularisation); we add
 ``geometric_weight * g_mean * |T| * I`` to every ``Gamma_T``, with ``g_mean`` the area-weighted mean of
 ``tr(G) / 2`` over the mesh (so the blend is relative to the signal's strength and unit-free). With the
 default 0.01 a constant region gets 1/10 of the UV area density of an isotropic region of average detail.
