@@ -132,13 +132,60 @@ def _constant_kernel(luma, points, centre):
         ey = max(abs(iy - cy) - 1.0, 0.0)
         if ey > radius:
             continue
-        for ix in range(int(np.floor(cx - radius)) - 1, int(np.ceil(cx + radius)) + 2):
-            ex = max(abs(ix - cx) - 1.0, 0.0)
-            if ex * ex + ey * ey > radius * radius:
-                continue
-            if luma[iy % h, ix % w] != value:
+        # Texels of this row within Euclidean distance radius of the disk centre, after the square dilation.
+        half = 1.0 + np.sqrt(radius * radius - ey * ey)
+        ix0 = int(np.ceil(cx - half))
+        ix1 = int(np.floor(cx + half))
+        row = iy % h
+        col = ix0 % w
+        for _ in range(ix1 - ix0 + 1):
+            if luma[row, col] != value:
                 return False
+            col += 1
+            if col == w:
+                col = 0
     return True
+
+
+@njit
+def _prepare_kernel(V, F, uv, draw, origin, right, up, normal, bounds, n, luma, centre, gradient):
+    """Numba: raster, texel points, reference luma, pooled indices, point box and constancy of one triangle."""
+    pixel, face, bary = _rasterize_kernel(V, F, draw, origin, right, up, normal, bounds, n)
+    count = pixel.shape[0]
+    h, w = luma.shape
+    points = np.empty((count, 2))
+    for p in range(count):
+        f = face[p]
+        points[p, 0] = (bary[p, 0] * uv[f, 0, 0] + bary[p, 1] * uv[f, 1, 0] + bary[p, 2] * uv[f, 2, 0]) * w
+        points[p, 1] = (bary[p, 0] * uv[f, 0, 1] + bary[p, 1] * uv[f, 1, 1] + bary[p, 2] * uv[f, 2, 1]) * h
+    reference = _sample_luma_kernel(luma, points)
+    m = n // 2
+    pooled_index = np.empty(count, np.int64)
+    image = np.zeros((n, n))
+    box = np.zeros(4)
+    if count:
+        box[0] = box[1] = points[0, 0]
+        box[2] = box[3] = points[0, 1]
+    for p in range(count):
+        i = pixel[p] // n
+        j = pixel[p] - i * n
+        pooled_index[p] = (i // 2 + 1) * (m + 2) + j // 2 + 1
+        image[i, j] = reference[p]
+        box[0] = min(box[0], points[p, 0])
+        box[1] = max(box[1], points[p, 0])
+        box[2] = min(box[2], points[p, 1])
+        box[3] = max(box[3], points[p, 1])
+    _pooled_gradient_kernel(image, gradient)
+    # Reference values that differ beyond round-off (equal texels v give v * (sum of weights), within a few
+    # ulps of v) prove that different texels are readable: skip the disk scan.
+    constant = True
+    for p in range(1, count):
+        if abs(reference[p] - reference[0]) > 1e-9 * (abs(reference[p]) + abs(reference[0])):
+            constant = False
+            break
+    if constant:
+        constant = _constant_kernel(luma, points, centre)
+    return pixel, points, reference, pooled_index, box, constant
 
 
 @njit
@@ -689,31 +736,25 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
     centres = np.empty((k, 2))
     gradients = np.empty((k, n // 2, n // 2))
     constant = np.empty(k, dtype=bool)
-    pixels, points, references = [], [], []
+    boxes = np.zeros((k, 4))
+    pixels, points, references, pooled = [], [], [], []
     offsets = np.zeros(k + 1, np.int64)
+    empty_draw = np.zeros(0, np.int64)
     for row, f in enumerate(faces):
         centres[row] = _centre_texel(uv[f], w, h)
-        if cameras.valid[row]:
-            draw = ring[ring_offsets[f]:ring_offsets[f + 1]]
-            pixel, hit_face, bary = _rasterize_kernel(V, F, draw, cameras.origin[row], cameras.right[row],
-                                                      cameras.up[row], cameras.normal[row],
-                                                      cameras.bounds[row], n)
-        else:
-            pixel, hit_face, bary = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
-        point = np.einsum("pk,pkd->pd", bary, uv[hit_face]) * scale
-        reference = _sample_luma_kernel(luma, point)
-        image = np.zeros(n * n)
-        image[pixel] = reference
-        _pooled_gradient_kernel(image.reshape(n, n), gradients[row])
-        constant[row] = _constant_kernel(luma, point, centres[row])
+        draw = ring[ring_offsets[f]:ring_offsets[f + 1]] if cameras.valid[row] else empty_draw
+        pixel, point, reference, pooled_index, boxes[row], constant[row] = _prepare_kernel(
+            V, F, uv, draw, cameras.origin[row], cameras.right[row], cameras.up[row], cameras.normal[row],
+            cameras.bounds[row], n, luma, centres[row], gradients[row])
         pixels.append(pixel)
         points.append(point)
         references.append(reference)
+        pooled.append(pooled_index)
         offsets[row + 1] = offsets[row] + len(pixel)
     cat = (lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape))
     return TriangleBatch(faces, n, (h, w), offsets, centres, cat(pixels, (0,)).astype(np.int64),
                          cat(points, (0, 2)), cat(references, (0,)), gradients, _uv_area(uv[faces], w, h),
-                         constant, float(ridge))
+                         constant, float(ridge), cat(pooled, (0,)).astype(np.int64), boxes)
 
 
 def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE):
