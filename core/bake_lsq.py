@@ -63,6 +63,63 @@ def _first_occurrence_ids(keys):
 
 
 @njit
+def _find(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]  # path halving
+        i = parent[i]
+    return i
+
+
+@njit
+def _group_by_component(ids, count):
+    """Numba: renumbering that makes the unknowns of each connected component consecutive.
+
+    Unknowns are connected when a row of ``ids`` (p, 4) holds both. Components are laid out in the order of
+    their first unknown and keep their unknowns' relative order, so an ordering that is good inside a
+    component stays good, and distant groups (a one-ring across UV seams, minified blocks) never share an
+    envelope row. Returns ``(renumber, n_components)``.
+    """
+    parent = np.arange(count)
+    for r in range(ids.shape[0]):
+        a = _find(parent, ids[r, 0])
+        for k in range(1, 4):
+            b = _find(parent, ids[r, k])
+            if a != b:
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+                    a = b
+    component = np.full(count, -1, np.int64)
+    n_components = 0
+    size = np.zeros(count + 1, np.int64)
+    label = np.empty(count, np.int64)
+    for i in range(count):
+        root = _find(parent, i)
+        if component[root] < 0:
+            component[root] = n_components
+            n_components += 1
+        label[i] = component[root]
+        size[label[i] + 1] += 1
+    for c in range(n_components):
+        size[c + 1] += size[c]
+    renumber = np.empty(count, np.int64)
+    for i in range(count):
+        renumber[i] = size[label[i]]
+        size[label[i]] += 1
+    return renumber, n_components
+
+
+@njit
+def _apply_renumber(ids, renumber):
+    out = np.empty_like(ids)
+    for r in range(ids.shape[0]):
+        for k in range(ids.shape[1]):
+            out[r, k] = renumber[ids[r, k]]
+    return out
+
+
+@njit
 def _envelope_first(ids, count):
     """Numba: first column of each row's envelope (the smallest unknown coupled to it by a pixel)."""
     first = np.arange(count)
@@ -80,6 +137,19 @@ def _solve_normal_equations(ids, weights, target, count, ridge):
 
     ``B[p, ids[p, k]] += weights[p, k]``. Returns ``x`` (count,).
     """
+    renumber, n_components = _group_by_component(ids, count)
+    if n_components == 1:
+        return _solve_ordered(ids, weights, target, count, ridge)
+    x = _solve_ordered(_apply_renumber(ids, renumber), weights, target, count, ridge)
+    out = np.empty(count)
+    for i in range(count):
+        out[i] = x[renumber[i]]
+    return out
+
+
+@njit
+def _solve_ordered(ids, weights, target, count, ridge):
+    """Numba: :func:`_solve_normal_equations` in the given unknown order."""
     first = _envelope_first(ids, count)
     offset = np.empty(count + 1, np.int64)
     offset[0] = 0

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._jit import njit
-from .bake_lsq import (DEFAULT_RIDGE, _envelope_cholesky_solve, _envelope_first, _first_occurrence_ids, _render_ids,
-                       _solve_normal_equations)
+from .bake_lsq import (DEFAULT_RIDGE, _apply_renumber, _envelope_cholesky_solve, _envelope_first,
+                       _first_occurrence_ids, _group_by_component, _render_ids, _solve_normal_equations)
 from .camera import triangle_cameras
 from .gmsd import GMSD_C, _gmsd_padded_pooled_kernel, _pooled_gradient_kernel, luma as _to_luma
 from .one_ring import one_ring_faces
@@ -297,9 +297,18 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
     oy = int(np.floor(ylo)) - 1
     width = int(np.floor(xhi)) - ox + 2
     height = int(np.floor(yhi)) - oy + 2
-    if width + 1 > w or height + 1 > h or width * height > 16 * count + 4096:
+    if width + 1 > w or height + 1 > h:
         return False
-    grid = np.full(width * height, -1, np.int64)
+    # Cells are found through a dense grid over the box, or through a hash table when the box is sparse (a
+    # one-ring across UV seams spans distant islands; minified footprints spread out).
+    dense = width * height <= 16 * count + 4096
+    grid = np.full(width * height if dense else 0, -1, np.int64)
+    table_bits = 4
+    while (1 << table_bits) < 4 * count:
+        table_bits += 1
+    mask = (1 << table_bits) - 1
+    table_key = np.full(0 if dense else mask + 1, -1, np.int64)
+    table_value = np.empty(0 if dense else mask + 1, np.int64)
     cell_pos = np.empty(count, np.int64)
     acc = np.empty((count, 14))
     pix_cell = np.empty(count, np.int64)
@@ -345,10 +354,23 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
                 s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
             if p == count:
                 break
-            c = grid[cell]
-            if c < 0:
+            if dense:
+                c = grid[cell]
+                if c < 0:
+                    c = n_cells
+                    grid[cell] = c
+            else:
+                slot = ((cell * 0x2545F491) ^ (cell >> 13)) & mask
+                while table_key[slot] >= 0 and table_key[slot] != cell:
+                    slot = (slot + 1) & mask
+                if table_key[slot] < 0:
+                    table_key[slot] = cell
+                    table_value[slot] = n_cells
+                    c = -1
+                else:
+                    c = table_value[slot]
+            if c < 0 or c == n_cells:
                 c = n_cells
-                grid[cell] = c
                 cell_pos[c] = cell
                 acc[c, :] = 0.0
                 n_cells += 1
@@ -375,38 +397,60 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
         pix_cell[p] = c
         frac[p, 0] = fx
         frac[p, 1] = fy
-    # Texels touched, numbered along the shorter side of the texel box (ordering A).
+    # Texels touched, numbered along the shorter side of the texel box (ordering A); in sparse boxes, row by
+    # row (sorted keys), then grouped by connected component below.
     tw = width + 1
     th = height + 1
-    tgrid = np.full(tw * th, -1, np.int64)
-    for c in range(n_cells):
-        cell = cell_pos[c]
-        t0 = (cell // width) * tw + cell % width
-        tgrid[t0] = -2
-        tgrid[t0 + 1] = -2
-        tgrid[t0 + tw] = -2
-        tgrid[t0 + tw + 1] = -2
-    n_tex = 0
-    if tw <= th:
-        for t in range(tw * th):
-            if tgrid[t] == -2:
-                tgrid[t] = n_tex
-                n_tex += 1
-    else:
-        for tx in range(tw):
-            for ty in range(th):
-                t = ty * tw + tx
+    cell_tex = np.empty((n_cells, 4), np.int64)
+    if dense:
+        tgrid = np.full(tw * th, -1, np.int64)
+        for c in range(n_cells):
+            cell = cell_pos[c]
+            t0 = (cell // width) * tw + cell % width
+            tgrid[t0] = -2
+            tgrid[t0 + 1] = -2
+            tgrid[t0 + tw] = -2
+            tgrid[t0 + tw + 1] = -2
+        n_tex = 0
+        if tw <= th:
+            for t in range(tw * th):
                 if tgrid[t] == -2:
                     tgrid[t] = n_tex
                     n_tex += 1
-    cell_tex = np.empty((n_cells, 4), np.int64)
-    for c in range(n_cells):
-        cell = cell_pos[c]
-        t0 = (cell // width) * tw + cell % width
-        cell_tex[c, 0] = tgrid[t0]
-        cell_tex[c, 1] = tgrid[t0 + 1]
-        cell_tex[c, 2] = tgrid[t0 + tw]
-        cell_tex[c, 3] = tgrid[t0 + tw + 1]
+        else:
+            for tx in range(tw):
+                for ty in range(th):
+                    t = ty * tw + tx
+                    if tgrid[t] == -2:
+                        tgrid[t] = n_tex
+                        n_tex += 1
+        for c in range(n_cells):
+            cell = cell_pos[c]
+            t0 = (cell // width) * tw + cell % width
+            cell_tex[c, 0] = tgrid[t0]
+            cell_tex[c, 1] = tgrid[t0 + 1]
+            cell_tex[c, 2] = tgrid[t0 + tw]
+            cell_tex[c, 3] = tgrid[t0 + tw + 1]
+    else:
+        keys = np.empty(4 * n_cells, np.int64)
+        for c in range(n_cells):
+            cell = cell_pos[c]
+            t0 = (cell // width) * tw + cell % width
+            keys[4 * c] = t0
+            keys[4 * c + 1] = t0 + 1
+            keys[4 * c + 2] = t0 + tw
+            keys[4 * c + 3] = t0 + tw + 1
+        order = np.argsort(keys)
+        n_tex = 0
+        flat_tex = cell_tex.reshape(-1)
+        for r in range(order.shape[0]):
+            if r > 0 and keys[order[r]] != keys[order[r - 1]]:
+                n_tex += 1
+            flat_tex[order[r]] = n_tex
+        n_tex += 1
+    renumber, n_components = _group_by_component(cell_tex, n_tex)
+    if n_components > 1:
+        cell_tex = _apply_renumber(cell_tex, renumber)
     first, cost = _envelope_cost(cell_tex, n_tex)
     # Ordering B: first read.
     renumber = np.full(n_tex, -1, np.int64)
@@ -421,6 +465,9 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
     for c in range(n_cells):
         for k in range(4):
             cell_tex_b[c, k] = renumber[cell_tex[c, k]]
+    if n_components > 1:
+        renumber, n_components = _group_by_component(cell_tex_b, n_tex)
+        cell_tex_b = _apply_renumber(cell_tex_b, renumber)
     first_b, cost_b = _envelope_cost(cell_tex_b, n_tex)
     if cost_b < cost:
         cell_tex = cell_tex_b

@@ -226,3 +226,23 @@ def test_footprint_larger_than_the_texture_wraps(textured):
     params = np.vstack([IDENTITY, random_params(np.random.default_rng(10), 3)])
     np.testing.assert_allclose(problem.evaluate(params), loss._evaluate_reference(problem, params),
                                rtol=1e-7, atol=1e-12)
+
+
+def test_one_ring_across_a_uv_seam(textured):
+    # Right half of the grid moved to a distant part of the atlas: the one-ring of a face at the seam reads two
+    # islands far apart (sparse texel box: hash lookup, component ordering). Must match the numpy reference.
+    V, F, uv, _, _ = textured
+    texture = np.random.default_rng(11).random((1024, 1024))
+    split = uv.copy() * 0.2
+    right = V[F][:, :, 0].mean(axis=1) > 0.5
+    split[right] += [0.6, 0.55]
+    face = int(np.flatnonzero(right & (np.abs(V[F][:, :, 0].mean(axis=1) - 0.58) < 0.05)
+                              & (np.abs(V[F][:, :, 1].mean(axis=1) - 0.5) < 0.1))[0])
+    problem = loss.triangle_problem(V, F, split, texture, face)
+    centre = problem.centre
+    far = np.linalg.norm(problem.points - centre, axis=1) > 300
+    assert far.any() and (~far).any()  # both islands are on screen
+    params = np.vstack([IDENTITY, random_params(np.random.default_rng(12), 4)])
+    e = problem.evaluate(params)
+    assert e[0] < 1e-8
+    np.testing.assert_allclose(e, loss._evaluate_reference(problem, params), rtol=1e-7, atol=1e-12)
