@@ -11,12 +11,16 @@ scale per dimension, expected improvement) and removes the overhead:
   profiled log marginal likelihood, only at a few points of the run (after the initial design, then each time
   the number of observations doubles);
 - between fits every new observation extends ``L`` by one row (forward substitution, O(n^2));
-- the acquisition is evaluated on a vectorized candidate batch (uniform + Gaussian perturbations around the
-  incumbents), the best candidate is refined by two rounds of local perturbations, and ``batch_size`` points
-  are chosen per round with the kriging believer: a pending point with the posterior mean as its fantasy
-  value leaves the mean unchanged and only lowers the variance, an O(n c) update of the candidates;
+- the acquisition is maximized over candidates: a fixed pool of uniform points, whose rows of
+  ``V = L^-1 K(X, C)`` are appended one per observation (O(n c)) and recomputed only after a fit, plus fresh
+  Gaussian perturbations of the incumbents at three scales each round (they stand in for a local
+  refinement of the acquisition's maximizer);
+- ``batch_size`` points are chosen per round with the kriging believer: a pending point with the posterior
+  mean as its fantasy value leaves the mean unchanged and only lowers the variance, so each pick costs one
+  O(n c) row update; one numba call selects the whole batch;
 - the objective is called once per round with all ``batch_size`` points (batched evaluation);
-- kernel matrix, posterior and the likelihood gradient are numba kernels, each with a numpy reference.
+- kernel matrix, Cholesky update, candidate rows, acquisition, batch selection and the likelihood gradient
+  are numba kernels, each with a numpy reference used in the tests.
 
 ``minimize`` is the unconstrained problem (``backend="skopt"`` runs scikit-optimize's ``gp_minimize`` with the
 same budget and start point, the paper's setting). ``minimize_constrained`` solves ``min cost(x)`` subject to
@@ -194,11 +198,14 @@ def _log_likelihood_numpy(X, y, log_length, log_noise, periodic):
 
 
 @njit
-def _append_rows_numba(V, squares, L, X, start, stop, C, inv_length, periodic):
-    """Rows ``start..stop-1`` of ``V = L^-1 K(X, C)`` and their squares added to ``squares`` (O(n c) a row)."""
-    c, d = C.shape
+def _append_rows_numba(V, squares, L, X, start, stop, C, first, last, inv_length, periodic):
+    """Rows ``start..stop-1`` of ``V = L^-1 K(X, C)`` for columns ``first..last-1``; squares accumulated.
+
+    Row ``p`` needs rows ``0..p-1`` (forward substitution): O(p) per entry.
+    """
+    d = C.shape[1]
     for p in range(start, stop):
-        for j in range(c):
+        for j in range(first, last):
             r2 = 0.0
             for k in range(d):
                 t = _scaled_difference(X[p, k], C[j, k], inv_length[k], periodic[k])
@@ -212,21 +219,20 @@ def _append_rows_numba(V, squares, L, X, start, stop, C, inv_length, periodic):
             squares[j] += s * s
 
 
-def _append_rows_numpy(V, squares, L, X, start, stop, C, inv_length, periodic):
+def _append_rows_numpy(V, squares, L, X, start, stop, C, first, last, inv_length, periodic):
     for p in range(start, stop):
-        k = _matern52_numpy(X[p:p + 1], C, inv_length, periodic)[0]
-        V[p] = (k - L[p, :p] @ V[:p]) / L[p, p]
-        squares += V[p] ** 2
+        k = _matern52_numpy(X[p:p + 1], C[first:last], inv_length, periodic)[0]
+        V[p, first:last] = (k - L[p, :p] @ V[:p, first:last]) / L[p, p]
+        squares[first:last] += V[p, first:last] ** 2
 
 
 @njit
-def _leading_dot_numba(V, w):
-    """``V[:len(w)].T @ w`` without BLAS (small, called often; BLAS threads only add latency here)."""
-    c = V.shape[1]
-    out = np.zeros(c)
+def _leading_dot_numba(V, w, count):
+    """``V[:len(w), :count].T @ w`` without BLAS (small and frequent: BLAS threads only add latency)."""
+    out = np.zeros(count)
     for i in range(w.shape[0]):
         wi = w[i]
-        for j in range(c):
+        for j in range(count):
             out[j] += V[i, j] * wi
     return out
 
@@ -274,45 +280,95 @@ def _log_ei_ratio_numba(z):
 
 
 @njit
-def _acquisition_numba(V, squares, w, signal, kind, best, parameter, log_improvement):
-    """Scores (higher is better) of candidates from ``V = L^-1 K(X, C)`` and its column sums of squares.
+def _scores_numba(mean, squares, signal, kind, best, parameter, cost, best_cost, taken):
+    """Acquisition (higher is better) from the standardized mean and ``squares = |L^-1 k(X, c)|^2``.
 
-    ``kind``: log expected improvement below ``best - parameter`` (standardized units); negative lower
-    confidence bound ``-(mean - parameter * std)``; log probability that the GP lies below ``best``
-    (feasibility); or ``log_improvement`` plus that log probability (expected feasible improvement).
+    ``kind``: log expected improvement below ``best - parameter``; negative lower confidence bound
+    ``-(mean - parameter * std)``; log probability that the GP lies below ``best`` (feasibility); or the log
+    of the cost improvement ``best_cost - cost`` plus that log probability (expected feasible improvement).
+    Taken candidates (already in the batch) score ``-inf``.
     """
-    c = V.shape[1]
-    n_observed = w.shape[0]
+    c = mean.shape[0]
     out = np.empty(c)
     for j in range(c):
-        mean = 0.0
-        for i in range(n_observed):
-            mean += V[i, j] * w[i]
+        if taken[j]:
+            out[j] = -np.inf
+            continue
         std = math.sqrt(max(1.0 - squares[j], 1e-12) * signal)
         if kind == _EI:
-            out[j] = _log_ei_ratio_numba((best - parameter - mean) / std) + math.log(std)
+            out[j] = _log_ei_ratio_numba((best - parameter - mean[j]) / std) + math.log(std)
         elif kind == _LCB:
-            out[j] = -(mean - parameter * std)
+            out[j] = -(mean[j] - parameter * std)
         elif kind == _FEASIBILITY:
-            out[j] = _log_normal_cdf_numba((best - mean) / std)
+            out[j] = _log_normal_cdf_numba((best - mean[j]) / std)
         else:
-            out[j] = log_improvement[j] + _log_normal_cdf_numba((best - mean) / std)
+            improvement = best_cost - cost[j]
+            if improvement <= 0.0:
+                out[j] = -np.inf
+            else:
+                out[j] = math.log(improvement) + _log_normal_cdf_numba((best - mean[j]) / std)
     return out
 
 
-def _acquisition_numpy(V, squares, w, signal, kind, best, parameter, log_improvement):
+def _scores_numpy(mean, squares, signal, kind, best, parameter, cost, best_cost, taken):
     from scipy.special import log_ndtr
 
-    mean = V[:len(w)].T @ w
     std = np.sqrt(np.maximum(1.0 - squares, 1e-12) * signal)
-    if kind == _EI:
-        z = (best - parameter - mean) / std
-        with np.errstate(divide="ignore"):
-            return np.log(z * np.exp(log_ndtr(z)) + np.exp(-0.5 * z * z - _LOG_SQRT_2PI)) + np.log(std)
-    if kind == _LCB:
-        return -(mean - parameter * std)
-    log_feasible = log_ndtr((best - mean) / std)
-    return log_feasible if kind == _FEASIBILITY else log_improvement + log_feasible
+    with np.errstate(divide="ignore"):
+        if kind == _EI:
+            z = (best - parameter - mean) / std
+            out = np.log(z * np.exp(log_ndtr(z)) + np.exp(-0.5 * z * z - _LOG_SQRT_2PI)) + np.log(std)
+        elif kind == _LCB:
+            out = -(mean - parameter * std)
+        else:
+            out = log_ndtr((best - mean) / std)
+            if kind == _FEASIBLE_IMPROVEMENT:
+                out = out + np.log(np.maximum(best_cost - cost, 0.0))
+    return np.where(taken, -np.inf, out)
+
+
+@njit
+def _select_batch_numba(q, X, L, n, noise, C, V, squares, mean, signal, inv_length, periodic, kind, best,
+                        parameter, cost, best_cost):
+    """Choose ``q`` candidates by the kriging believer; appends them to ``X``, ``L`` and the rows of ``V``.
+
+    After a pick ``j``, its column ``V[:n, j]`` is the new row of ``L`` (it is ``L^-1 k(X, c_j)``), the
+    diagonal is ``sqrt(1 + noise - squares[j])``, and one new row of ``V`` lowers every candidate's variance;
+    the mean does not change (the fantasy target is the posterior mean). Returns the chosen indices.
+    """
+    c = C.shape[0]
+    taken = np.zeros(c, np.bool_)
+    chosen = np.empty(q, np.int64)
+    for pick in range(q):
+        scores = _scores_numba(mean, squares, signal, kind, best, parameter, cost, best_cost, taken)
+        j = int(np.argmax(scores))
+        chosen[pick] = j
+        taken[j] = True
+        for i in range(n):
+            L[n, i] = V[i, j]
+        L[n, n] = math.sqrt(max(1.0 + noise - squares[j], 1e-12))
+        X[n] = C[j]
+        _append_rows_numba(V, squares, L, X, n, n + 1, C, 0, c, inv_length, periodic)
+        n += 1
+    return chosen
+
+
+def _select_batch_numpy(q, X, L, n, noise, C, V, squares, mean, signal, inv_length, periodic, kind, best,
+                        parameter, cost, best_cost):
+    """Reference: refactor the kernel matrix densely after each pick (no incremental updates)."""
+    taken = np.zeros(len(C), bool)
+    chosen = []
+    points = X[:n].copy()
+    for _ in range(q):
+        K = _matern52_numpy(points, points, inv_length, periodic) + noise * np.eye(len(points))
+        Ks = _matern52_numpy(points, C, inv_length, periodic)
+        variance_drop = np.einsum("ij,ij->j", Ks, np.linalg.solve(K, Ks))
+        scores = _scores_numpy(mean, variance_drop, signal, kind, best, parameter, cost, best_cost, taken)
+        j = int(np.argmax(scores))
+        chosen.append(j)
+        taken[j] = True
+        points = np.vstack([points, C[j]])
+    return np.array(chosen)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -434,103 +490,90 @@ def _call(function, points, name):
     return values
 
 
-class _Candidates:
-    """Candidate points with ``V = L^-1 K(X, C)`` kept in step with the GP by appending one row per point."""
-
-    def __init__(self, gp, C, cost=None):
-        self.C = np.ascontiguousarray(C)
-        self.cost = None if cost is None else cost(self.C)
-        self.V = np.empty((gp.X.shape[0], len(C)))
-        self.squares = np.zeros(len(C))
-        self.rows = 0
-        self.sync(gp)
-
-    def sync(self, gp):
-        """Append the rows of points added to ``gp`` since the last call (O(n c) each)."""
-        if self.rows < gp.n:
-            _append_rows_numba(self.V, self.squares, gp.L, gp.X, self.rows, gp.n, self.C, gp.inv_length,
-                               gp.periodic)
-            self.rows = gp.n
-
-    def recompute(self, gp):
-        """Start over after the hyper-parameters (hence ``L``) changed."""
-        self.squares[:] = 0.0
-        self.rows = 0
-        self.sync(gp)
-
-
 @dataclasses.dataclass
 class _Acquisition:
-    """What the search maximizes this round: kind, target level in standardized units, parameter."""
+    """What a round maximizes: kind, target level (standardized units), parameter, best feasible cost."""
 
     kind: int
     best: float
     parameter: float = 0.0
-    best_cost: float = np.inf  # expected feasible improvement: current best feasible cost
-
-    def scores(self, candidates, gp):
-        candidates.sync(gp)
-        if self.kind == _FEASIBLE_IMPROVEMENT:
-            with np.errstate(divide="ignore"):
-                log_improvement = np.log(np.maximum(self.best_cost - candidates.cost, 0.0))
-        else:
-            log_improvement = candidates.squares  # unused by the other kinds
-        return _acquisition_numba(candidates.V, candidates.squares, gp.w, gp.signal, self.kind, self.best,
-                                  self.parameter, log_improvement)
+    best_cost: float = np.inf
 
 
 class _Search:
-    """Candidate generation, acquisition maximization and batch selection for one run.
+    """Candidates and batch selection for one run.
 
-    A fixed pool of uniform points is updated incrementally (one row per new observation) and recomputed only
-    after a hyper-parameter fit; each round adds fresh Gaussian perturbations of the incumbents, and the best
-    candidate of every pick is refined by rounds of smaller perturbations around it.
+    Columns ``0..pool_size-1`` of ``C`` are a fixed uniform pool whose ``V`` rows are kept in step with the GP;
+    the remaining columns are redrawn every round around the incumbents at three scales (fractions of the
+    length scales) and computed afresh.
     """
 
-    def __init__(self, gp, rng, periodic, *, candidates, local_candidates, cost=None, refinements=(0.1, 0.03),
-                 refinement_points=24):
+    _SCALES = (0.3, 0.1, 0.03)
+
+    def __init__(self, gp, rng, periodic, *, pool_size, local_size, cost=None):
         self.gp = gp
         self.rng = rng
         self.periodic = periodic
-        self.cost = cost
-        self.pool = _Candidates(gp, rng.random((candidates, gp.dims)), cost)
-        self.local_candidates = local_candidates
-        self.refinements = refinements
-        self.refinement_points = refinement_points
+        self.pool_size = pool_size
+        self.local_size = local_size
+        self.cost_function = cost
+        total = pool_size + local_size
+        self.C = np.empty((total, gp.dims))
+        self.C[:pool_size] = rng.random((pool_size, gp.dims))
+        # A quarter of the pool lies on faces, edges and corners of the box, where constrained optima often are.
+        on_faces = self.C[:pool_size // 4]
+        snap = rng.random(on_faces.shape) < 0.3
+        on_faces[snap] = np.round(on_faces[snap])
+        self.cost = np.zeros(total)
+        if cost is not None and pool_size:
+            self.cost[:pool_size] = cost(self.C[:pool_size])
+        self.V = np.empty((gp.X.shape[0], total))
+        self.squares = np.zeros(total)
+        self.pool_rows = 0
 
     def hyperparameters_changed(self):
-        self.pool.recompute(self.gp)
+        self.pool_rows = 0
+        self.squares[:self.pool_size] = 0.0
 
-    def _perturb(self, centres, count, scale):
-        picks = centres[self.rng.integers(0, len(centres), size=count)]
-        points = picks + self.rng.standard_normal((count, self.gp.dims)) * scale
+    def _local_points(self, incumbents):
+        """Gaussian steps from the incumbents; half of them move only a random subset of coordinates.
+
+        Moving few coordinates at a time (as in DYCORS, Regis and Shoemaker 2013) reaches optima on faces and
+        edges of the box and along thin axis-aligned ridges, which full-dimensional steps almost never hit.
+        """
+        count, d = self.local_size, self.gp.dims
+        length = np.minimum(np.exp(self.gp.log_length), 1.0)
+        scale = np.repeat(self._SCALES, -(-count // len(self._SCALES)))[:count]
+        # Half of the steps start from the best point, the rest from any incumbent.
+        centres = incumbents[np.where(np.arange(count) % 2 == 0, 0,
+                                      self.rng.integers(0, len(incumbents), size=count))]
+        step = self.rng.standard_normal((count, d)) * scale[:, None] * length
+        subset = self.rng.random((count, d)) < 1.0 / d
+        subset[np.arange(count), self.rng.integers(0, d, size=count)] = True
+        subset[: count // 2] = True
+        points = centres + np.where(subset, step, 0.0)
         return np.where(self.periodic, np.mod(points, 1.0), np.clip(points, 0.0, 1.0))
 
     def select(self, acquisition, incumbents, batch_size):
-        """Pick ``batch_size`` unit-cube points maximizing the acquisition, kriging believer for the batch."""
-        gp = self.gp
-        length = np.minimum(np.exp(gp.log_length), 1.0)
-        local = _Candidates(gp, self._perturb(incumbents, self.local_candidates, 0.25 * length), self.cost)
-        chosen = []
-        for _ in range(batch_size):
-            best_value, best_x = -np.inf, None
-            for candidates in (self.pool, local):
-                values = acquisition.scores(candidates, gp)
-                j = int(np.argmax(values))
-                if values[j] > best_value:
-                    best_value, best_x = values[j], candidates.C[j]
-            if best_x is None:  # no candidate can improve (every score -inf): explore uniformly
-                best_x = self.rng.random(gp.dims)
-            for radius in self.refinements:
-                near = _Candidates(gp, self._perturb(best_x[None, :], self.refinement_points, radius * length),
-                                   self.cost)
-                values = acquisition.scores(near, gp)
-                j = int(np.argmax(values))
-                if values[j] > best_value:
-                    best_value, best_x = values[j], near.C[j]
-            chosen.append(best_x.copy())
-            gp.add(best_x)
-        return np.array(chosen)
+        """Append ``batch_size`` pending points to the GP and return them (unit cube)."""
+        gp, n, P = self.gp, self.gp.n, self.pool_size
+        inv_length = gp.inv_length
+        if self.pool_rows < n:
+            _append_rows_numba(self.V, self.squares, gp.L, gp.X, self.pool_rows, n, self.C, 0, P, inv_length,
+                               self.periodic)
+        if self.local_size:
+            self.C[P:] = self._local_points(incumbents)
+            if self.cost_function is not None:
+                self.cost[P:] = self.cost_function(self.C[P:])
+            self.squares[P:] = 0.0
+            _append_rows_numba(self.V, self.squares, gp.L, gp.X, 0, n, self.C, P, len(self.C), inv_length,
+                               self.periodic)
+        mean = _leading_dot_numba(self.V, gp.w, len(self.C))
+        chosen = _select_batch_numba(batch_size, gp.X, gp.L, n, math.exp(gp.log_noise), self.C, self.V,
+                                     self.squares, mean, gp.signal, inv_length, self.periodic, acquisition.kind,
+                                     acquisition.best, acquisition.parameter, self.cost, acquisition.best_cost)
+        gp.n = self.pool_rows = n + batch_size
+        return self.C[chosen].copy()
 
 
 def _initial_design(rng, dims, count):
@@ -541,20 +584,27 @@ def _initial_design(rng, dims, count):
 
 def _run(evaluate, plan, bounds, *, evaluations, initial_points, batch_size, x0, periodic, seed, candidates,
          local_candidates, fits, unit_cost=None, stop=None):
-    """Shared loop: ``evaluate(unit_points) -> targets``; ``plan(gp) -> (_Acquisition, incumbents)``."""
+    """Shared loop: ``evaluate(unit_points) -> targets``; ``plan(gp) -> (_Acquisition, incumbents)``.
+
+    ``x0`` is evaluated first on its own, so ``stop()`` can end the run before the rest of the design.
+    """
     d = bounds.shape[0]
     rng = np.random.default_rng(seed)
     low, width = bounds[:, 0], bounds[:, 1] - bounds[:, 0]
     gp = _GaussianProcess(d, evaluations + batch_size, periodic)
-    design = np.vstack([(x0 - low) / width, _initial_design(rng, d, max(initial_points - len(x0), 0))])
-    design = design[:evaluations]
-    targets = list(evaluate(design))
-    for x in design:
-        gp.add(x)
+    stop = stop or (lambda: False)
+    targets = []
+    for design in ((x0 - low) / width, _initial_design(rng, d, max(initial_points - len(x0), 0))):
+        design = design[:evaluations - gp.n]
+        if not len(design) or (gp.n and stop()):
+            continue
+        targets.extend(evaluate(design))
+        for x in design:
+            gp.add(x)
     gp.set_targets(np.asarray(targets))
-    search = _Search(gp, rng, periodic, candidates=candidates, local_candidates=local_candidates, cost=unit_cost)
+    search = _Search(gp, rng, periodic, pool_size=candidates, local_size=local_candidates, cost=unit_cost)
     next_fit, fits_left = gp.n, fits
-    while gp.n < evaluations and not (stop is not None and stop()):
+    while gp.n < evaluations and not stop():
         if fits_left > 0 and gp.n >= next_fit:
             gp.fit()
             search.hyperparameters_changed()
@@ -567,7 +617,7 @@ def _run(evaluate, plan, bounds, *, evaluations, initial_points, batch_size, x0,
 
 
 def minimize(objective, bounds, *, evaluations=100, initial_points=10, batch_size=4, x0=None, periodic=None,
-             acquisition="ei", xi=0.01, kappa=1.96, seed=0, backend="fast", candidates=1024, local_candidates=128,
+             acquisition="ei", xi=0.01, kappa=1.96, seed=0, backend="fast", candidates=512, local_candidates=96,
              fits=3):
     """Minimize an expensive function over a box by Gaussian-process Bayesian optimization.
 
@@ -637,8 +687,8 @@ def minimize(objective, bounds, *, evaluations=100, initial_points=10, batch_siz
 
 
 def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100, initial_points=10, batch_size=4,
-                         x0=None, periodic=None, cost_lower_bound=None, seed=0, candidates=1024,
-                         local_candidates=128, fits=3):
+                         x0=None, periodic=None, cost_lower_bound=None, seed=0, candidates=512,
+                         local_candidates=96, fits=3):
     """Minimize a cheap known cost subject to an expensive constraint ``constraint(x) <= threshold``.
 
     The GP models the constraint only; the acquisition is ``max(best_cost - cost(x), 0) * P(g(x) <= t)``, the

@@ -59,39 +59,78 @@ def test_append_rows_numba_matches_reference_and_dense_solve():
     dense = scipy.linalg.solve_triangular(L, bayesopt._matern52_numpy(X, C, inv_length, periodic), lower=True)
     for append in (bayesopt._append_rows_numba, bayesopt._append_rows_numpy):
         V, squares = np.empty((len(X), len(C))), np.zeros(len(C))
-        append(V, squares, L, X, 0, 5, C, inv_length, periodic)  # in two steps, as the search does
-        append(V, squares, L, X, 5, len(X), C, inv_length, periodic)
+        # rows in two steps and columns in two blocks, as the search does
+        append(V, squares, L, X, 0, 5, C, 0, 3, inv_length, periodic)
+        append(V, squares, L, X, 5, len(X), C, 0, 3, inv_length, periodic)
+        append(V, squares, L, X, 0, len(X), C, 3, len(C), inv_length, periodic)
         np.testing.assert_allclose(V, dense, atol=1e-12)
         np.testing.assert_allclose(squares, (dense ** 2).sum(0), atol=1e-12)
 
 
 def test_posterior_from_rows_matches_textbook_formula():
-    # mean = k*^T K^-1 y and var = 1 + eta - ... : recompute with dense inverses.
+    # mean = k*^T K^-1 y and variance 1 - k*^T K^-1 k*: recompute with dense solves.
     X, C, inv_length, periodic = _random_problem(3)
     noise = 1e-3
     y = np.sin(3 * X).sum(1)
     L = _full_factor(X, inv_length, periodic, noise)
     V, squares = np.empty((len(X), len(C))), np.zeros(len(C))
-    bayesopt._append_rows_numba(V, squares, L, X, 0, len(X), C, inv_length, periodic)
+    bayesopt._append_rows_numba(V, squares, L, X, 0, len(X), C, 0, len(C), inv_length, periodic)
     w = scipy.linalg.solve_triangular(L, y, lower=True)
     K = bayesopt._matern52_numpy(X, X, inv_length, periodic) + noise * np.eye(len(X))
     Ks = bayesopt._matern52_numpy(X, C, inv_length, periodic)
-    np.testing.assert_allclose(V.T @ w, Ks.T @ np.linalg.solve(K, y), atol=1e-10)
-    np.testing.assert_allclose(1 - squares, 1 - np.einsum("ij,ij->j", Ks, np.linalg.solve(K, Ks)), atol=1e-10)
+    np.testing.assert_allclose(bayesopt._leading_dot_numba(V, w, len(C)), Ks.T @ np.linalg.solve(K, y), atol=1e-10)
+    np.testing.assert_allclose(squares, np.einsum("ij,ij->j", Ks, np.linalg.solve(K, Ks)), atol=1e-10)
+
+
+def _scored_problem(seed, c=60):
+    X, C, inv_length, periodic = _random_problem(seed, c=c)
+    rng = np.random.default_rng(seed)
+    mean, squares = rng.normal(size=c), rng.uniform(0, 0.999, c)
+    cost, taken = rng.random(c), rng.random(c) < 0.1
+    return mean, squares, cost, taken
 
 
 @pytest.mark.parametrize("kind", [bayesopt._EI, bayesopt._LCB, bayesopt._FEASIBILITY,
                                   bayesopt._FEASIBLE_IMPROVEMENT])
-def test_acquisition_numba_matches_numpy_reference(kind):
-    X, C, inv_length, periodic = _random_problem(4, c=50)
-    L = _full_factor(X, inv_length, periodic, 1e-4)
-    V, squares = np.empty((len(X), len(C))), np.zeros(len(C))
-    bayesopt._append_rows_numba(V, squares, L, X, 0, len(X), C, inv_length, periodic)
-    w = scipy.linalg.solve_triangular(L, np.cos(4 * X).sum(1), lower=True)[:10]  # 2 pending points
-    log_improvement = np.log(np.random.default_rng(0).random(len(C)))
-    args = (V, squares, w, 0.7, kind, -0.3, 0.01, log_improvement)
-    np.testing.assert_allclose(bayesopt._acquisition_numba(*args), bayesopt._acquisition_numpy(*args),
-                               rtol=1e-9, atol=1e-12)
+def test_scores_numba_matches_numpy_reference(kind):
+    mean, squares, cost, taken = _scored_problem(4)
+    args = (mean, squares, 0.7, kind, -0.3, 0.01, cost, 0.6, taken)
+    np.testing.assert_allclose(bayesopt._scores_numba(*args), bayesopt._scores_numpy(*args), rtol=1e-9,
+                               atol=1e-12)
+
+
+def test_expected_improvement_closed_form():
+    # EI = (best - xi - m) Phi(z) + s phi(z), z = (best - xi - m) / s, at m = 0.2, s = sqrt(0.5 * 2), best = 0.
+    m, signal = 0.2, 2.0
+    s = math.sqrt(0.5 * signal)
+    z = (0.0 - 0.01 - m) / s
+    expected = (0.0 - 0.01 - m) * scipy.special.ndtr(z) + s * math.exp(-z * z / 2) / math.sqrt(2 * math.pi)
+    score = bayesopt._scores_numba(np.array([m]), np.array([0.5]), signal, bayesopt._EI, 0.0, 0.01, np.zeros(1),
+                                   0.0, np.zeros(1, bool))
+    assert math.exp(score[0]) == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("kind", [bayesopt._EI, bayesopt._FEASIBLE_IMPROVEMENT])
+def test_select_batch_incremental_matches_dense_reference(kind):
+    X, C, inv_length, periodic = _random_problem(9, n=10, c=80)
+    noise, q = 1e-4, 4
+    capacity = len(X) + q
+    Xc, L = np.zeros((capacity, 4)), np.zeros((capacity, capacity))
+    Xc[:len(X)] = X
+    L[:len(X), :len(X)] = _full_factor(X, inv_length, periodic, noise)
+    V, squares = np.empty((capacity, len(C))), np.zeros(len(C))
+    bayesopt._append_rows_numba(V, squares, L, Xc, 0, len(X), C, 0, len(C), inv_length, periodic)
+    w = scipy.linalg.solve_triangular(L[:len(X), :len(X)], np.sin(4 * X[:, 0]), lower=True)
+    mean = bayesopt._leading_dot_numba(V, w, len(C))
+    cost = np.random.default_rng(0).random(len(C))
+    args = (mean, 0.8, inv_length, periodic, kind, 0.1, 0.01, cost, 0.7)
+    reference = bayesopt._select_batch_numpy(q, Xc.copy(), L.copy(), len(X), noise, C, V.copy(), squares.copy(),
+                                             *args)
+    chosen = bayesopt._select_batch_numba(q, Xc, L, len(X), noise, C, V, squares, *args)
+    np.testing.assert_array_equal(chosen, reference)
+    assert len(set(chosen.tolist())) == q
+    # the appended factor is the factor of the extended kernel matrix
+    np.testing.assert_allclose(L, _full_factor(Xc, inv_length, periodic, noise), atol=1e-10)
 
 
 def test_log_normal_cdf_deep_tail_matches_scipy():
@@ -215,10 +254,10 @@ def test_minimize_constrained_by_hand():
 
 
 def test_minimize_constrained_stops_at_known_lower_bound():
-    # The cost's infimum over the box (corner 0.1 * 0.1) is feasible: the run stops after the first batch.
+    # The cost's infimum over the box (corner 0.1 * 0.1) is feasible: the run stops right after x0.
     result = minimize_constrained(lambda P: P[:, 0] * P[:, 1], lambda P: np.zeros(len(P)), [[0.1, 1], [0.1, 1]],
                                   threshold=0.5, x0=[[1, 1], [0.1, 0.1]], cost_lower_bound=0.01, evaluations=50)
-    assert result.evaluations == 10
+    assert result.evaluations == 2
     assert result.fun == pytest.approx(0.01)
 
 

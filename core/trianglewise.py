@@ -1,0 +1,689 @@
+"""Triangle-wise stage: per triangle, the smallest texel area whose perceptual loss stays within epsilon.
+
+For triangle ``i`` the deformation ``grad phi_i = R(alpha) V(beta) diag(lambda1, lambda2) V(beta)^T``
+(Eq. 13-14) scales the triangle's texel area by ``lambda1 * lambda2``; the loss ``E(alpha, lambda1, lambda2,
+beta)`` is the GMSD between the reference render of the one-ring and its render after re-baking the deformed
+texels (:mod:`.loss`). The paper solves Eq. 7,
+
+    min lambda1 lambda2 |tri_i^t|   subject to   E <= epsilon,
+
+through the barrier form Eq. 12-14 and Bayesian optimization, then measures the sensitivity weights of Eq. 17
+for the mesh-wise stage.
+
+Decisions (the paper leaves them open):
+
+* Box: ``alpha, beta in [0, pi/2)`` (the paper's symmetry argument), ``lambda in [lambda_min, 1]`` with
+  ``lambda_min = 0.1``: a triangle may shrink to 1 % of its texel area. The paper's ``(0, 1]`` is open at 0;
+  a floor is needed for a box, and below ~0.1 a one-ring of typical size (tens of texels) collapses to a
+  handful of texels, where the re-bake is decided by its regularization rather than the texture, and the
+  mesh-wise stage has to squeeze triangles towards degeneracy.
+* ``alpha`` is treated as periodic with period ``pi/2`` by the GP kernel: a quarter turn of ``R`` about a
+  texel centre maps the texel lattice onto itself, so ``E(alpha + pi/2) = E(alpha)`` exactly (:mod:`.loss`).
+* Two formulations. ``"constrained"`` (default) solves Eq. 7 directly: the cost ``lambda1 lambda2`` is
+  known, a GP models ``g = log(E + epsilon / 10)`` (the log spreads the values near the bound and tames the
+  large losses of strong shrinking), and the acquisition is the exact area improvement times the GP
+  probability that ``E <= epsilon`` (:func:`.bayesopt.minimize_constrained`). The identity and the smallest
+  box corner ``(0, lambda_min, lambda_min, 0)`` are the first two evaluations: when the corner is feasible it
+  is the global optimum and the run stops there. ``"barrier"`` is the paper's Eq. 14, minimized with
+  expected improvement (:func:`.bayesopt.minimize`, or scikit-optimize with ``backend="skopt"``). Its area
+  term is ``lambda1 lambda2 |tri^t|`` in texels of the input texture (``problem.uv_area``). The GP cannot
+  take the infinite barrier, so it sees :func:`finite_barrier`: ``-log(epsilon - E)`` up to
+  ``E = epsilon - delta`` with ``delta = epsilon / 100``, then its first-order-matching logarithmic
+  continuation ``-log(delta) + log(1 + (E - epsilon + delta) / delta)``: finite, increasing, continuous with
+  a continuous slope, and only logarithmically growing, so one very bad sample does not flatten the GP.
+  Both formulations return the best evaluated point that satisfies ``E <= epsilon`` by the exact criterion
+  (area, or Eq. 14 with the true barrier); the identity is always evaluated first, so one exists whenever
+  the input itself is within the bound (``E(identity) ~ 1e-12``).
+* Weights (Eq. 17) are population variances of E over fixed samples, the other parameters at the optimum:
+  ``w_R`` over ``alpha`` at the 8 midpoints ``(k + 1/2) pi / 16`` of ``[0, pi/2)`` (E is ``pi/2``-periodic
+  in ``alpha`` and the midpoint rule is the exact-for-trigonometric-polynomials rule for periodic
+  functions); ``w_S`` over 16 points of a scrambled Sobol sequence (fixed seed, the same for every triangle,
+  so weights of different triangles are comparable) in ``[lambda_min, 1]^2 x [0, pi/2)``. These 24
+  evaluations are counted in ``evaluations``.
+* Constant one-rings (``problem.is_constant``: every texel any allowed deformation can read has the same
+  luma, so ``E = 0`` exactly) skip the optimization: ``(0, lambda_min, lambda_min, 0)``, ``E = 0``,
+  ``w_R = w_S = 0``, no evaluation.
+* Determinism: each triangle's optimizer is seeded by ``(seed, face)``, so results do not depend on the
+  number of workers or on how faces are split into chunks.
+* Workers are spawned processes that receive the mesh arrays once and face-index chunks afterwards. Inside
+  Blender, ``sys.executable`` may not be a Python interpreter and the package is importable only as
+  ``bl_ext.<repo>.perceptual_uv``: workers get an interpreter found next to the running Python and register
+  the package's parent modules as bare namespace modules before importing this module, so the extension's
+  ``__init__`` (which registers Blender classes) never runs in a worker.
+
+References
+----------
+Sun et al. 2022, Sec. 4.1 (Eq. 6-7, 12-14), Sec. 4.2 (Eq. 17).
+"""
+import contextlib
+import dataclasses
+import math
+import os
+import sys
+import types
+
+import numpy as np
+
+from . import bayesopt
+from .loss import prepare_triangles
+from .one_ring import one_ring_faces
+
+__all__ = ["LAMBDA_MIN", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
+           "optimize_triangle", "iter_optimize_triangles", "optimize_triangles", "losses_at"]
+
+LAMBDA_MIN = 0.1
+ROTATION_SAMPLES = 8
+STRETCH_SAMPLES = 16
+POLISH_EVALUATIONS = 12
+_QUARTER = 0.5 * math.pi
+_FORMULATIONS = ("constrained", "barrier")
+_BACKENDS = ("fast", "skopt")
+
+
+# ---------------------------------------------------------------------------------------------------- objective
+def finite_barrier(loss, epsilon):
+    """The barrier of Eq. 12 with a finite, increasing continuation for the GP.
+
+    Parameters
+    ----------
+    loss : (k,) array_like
+        Perceptual loss values E.
+    epsilon : float
+        The bound.
+
+    Returns
+    -------
+    (k,) ndarray
+        ``-log(epsilon - E)`` for ``E <= epsilon - delta`` and ``-log(delta) + log(1 + (E - epsilon + delta) /
+        delta)`` above, ``delta = epsilon / 100``: value and slope agree at the joint.
+
+    References
+    ----------
+    Sun et al. 2022, Eq. 12.
+    """
+    loss = np.asarray(loss, dtype=np.float64)
+    delta = 0.01 * epsilon
+    joint = epsilon - delta
+    inside = -np.log(np.maximum(epsilon - loss, delta))
+    outside = -math.log(delta) + np.log1p(np.maximum(loss - joint, 0.0) / delta)
+    return np.where(loss <= joint, inside, outside)
+
+
+def _barrier_objective(params, loss, area, epsilon):
+    """Eq. 14 exactly: infinite outside the bound."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        barrier = np.where(loss < epsilon, -np.log(np.maximum(epsilon - loss, 0.0)), np.inf)
+    return params[:, 1] * params[:, 2] * area + barrier
+
+
+def _bounds(lambda_min):
+    return np.array([[0.0, _QUARTER], [lambda_min, 1.0], [lambda_min, 1.0], [0.0, _QUARTER]])
+
+
+def _stretch_samples(lambda_min, count):
+    import scipy.stats.qmc
+
+    unit = scipy.stats.qmc.Sobol(d=3, scramble=True, seed=0).random(count)
+    return np.column_stack([lambda_min + (1.0 - lambda_min) * unit[:, 0], lambda_min + (1.0 - lambda_min) *
+                            unit[:, 1], _QUARTER * unit[:, 2]])
+
+
+# ---------------------------------------------------------------------------------------------------- one triangle
+@dataclasses.dataclass(frozen=True)
+class TriangleOptimum:
+    """Result of :func:`optimize_triangle`.
+
+    Attributes
+    ----------
+    params : (4,) ndarray
+        ``(alpha, lambda1, lambda2, beta)`` at the optimum.
+    loss : float
+        E at ``params``.
+    w_R, w_S : float
+        Sensitivity weights of Eq. 17.
+    evaluations : int
+        Loss evaluations used (optimization and weights).
+    feasible : bool
+        ``loss <= epsilon``.
+    """
+
+    params: np.ndarray
+    loss: float
+    w_R: float
+    w_S: float
+    evaluations: int
+    feasible: bool
+
+
+def sensitivity_weights(problem, params, *, lambda_min=LAMBDA_MIN, rotation_samples=ROTATION_SAMPLES,
+                        stretch_samples=STRETCH_SAMPLES):
+    """Rotation and stretch sensitivities of E at an optimum (Eq. 17).
+
+    Parameters
+    ----------
+    problem : TriangleProblem
+        From :func:`.loss.triangle_problem` (anything with ``evaluate((k, 4)) -> (k,)``).
+    params : (4,) array_like
+        ``(alpha, lambda1, lambda2, beta)`` at the optimum.
+    lambda_min : float, optional
+        Lower end of the uniform ``lambda`` samples.
+    rotation_samples, stretch_samples : int, optional
+        Number of ``alpha`` midpoints and of Sobol ``(lambda1, lambda2, beta)`` points.
+
+    Returns
+    -------
+    w_R : float
+        Population variance of ``E(alpha, lambda1*, lambda2*, beta*)`` over ``alpha`` uniform in ``[0, pi/2)``.
+    w_S : float
+        Population variance of ``E(alpha*, lambda1, lambda2, beta)`` over uniform ``(lambda1, lambda2, beta)``.
+    evaluations : int
+        ``rotation_samples + stretch_samples``.
+
+    References
+    ----------
+    Sun et al. 2022, Eq. 17.
+    """
+    params = np.asarray(params, dtype=np.float64).reshape(4)
+    if rotation_samples < 2 or stretch_samples < 2:
+        raise ValueError("a variance needs at least 2 samples per weight")
+    alpha = (np.arange(rotation_samples) + 0.5) * (_QUARTER / rotation_samples)
+    rotations = np.column_stack([alpha, np.tile(params[1:], (rotation_samples, 1))])
+    stretches = np.column_stack([np.full(stretch_samples, params[0]), _stretch_samples(lambda_min,
+                                                                                       stretch_samples)])
+    losses = np.asarray(problem.evaluate(np.vstack([rotations, stretches])), dtype=np.float64)
+    return (float(np.var(losses[:rotation_samples])), float(np.var(losses[rotation_samples:])),
+            rotation_samples + stretch_samples)
+
+
+def _check_options(epsilon, evaluations, lambda_min, formulation, backend):
+    if not 0 < epsilon < 1:
+        raise ValueError(f"epsilon must be in (0, 1), got {epsilon}")
+    if int(evaluations) != evaluations or evaluations < 2:
+        raise ValueError(f"evaluations must be an integer >= 2, got {evaluations}")
+    if not 0 < lambda_min < 1:
+        raise ValueError(f"lambda_min must be in (0, 1), got {lambda_min}")
+    if backend not in _BACKENDS:
+        raise ValueError(f"backend must be one of {_BACKENDS}, got {backend!r}")
+    formulation = formulation or ("constrained" if backend == "fast" else "barrier")
+    if formulation not in _FORMULATIONS:
+        raise ValueError(f"formulation must be one of {_FORMULATIONS}, got {formulation!r}")
+    if backend == "skopt" and formulation != "barrier":
+        raise ValueError("the skopt backend runs the paper's barrier formulation only")
+    return formulation
+
+
+def _polish(loss, best, epsilon, lambda_min, evaluations):
+    """Bisection on lambda1 and on lambda2 alone from the best feasible point, two evaluations a round.
+
+    Bayesian optimization with a stationary GP finds thin feasible sets (aligned stripes: only
+    ``alpha ~ 0``, ``beta ~ 0``, ``lambda1 ~ 1`` pass, any ``lambda2``) but rarely walks along them; shrinking
+    one eigenvalue at a time is the walk. Each coordinate keeps a bracket ``[low, high]`` (``high`` feasible)
+    and tries the geometric midpoint.
+    """
+    best = np.array(best, dtype=np.float64)
+    low = np.array([lambda_min, lambda_min])
+    for _ in range(evaluations // 2):
+        high = best[1:3]
+        if np.all(high <= low * (1 + 1e-3)):
+            break
+        trial = np.tile(best, (2, 1))
+        middle = np.sqrt(low * high)
+        trial[0, 1], trial[1, 2] = middle[0], middle[1]
+        within = loss(trial) <= epsilon
+        cost = trial[:, 1] * trial[:, 2]
+        for k in (0, 1):
+            if not within[k]:
+                low[k] = middle[k]
+        if within.any():
+            best = trial[int(np.argmin(np.where(within, cost, np.inf)))]
+    return best
+
+
+def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMBDA_MIN, formulation=None,
+                      backend="fast", seed=0, weights=True, polish_evaluations=None):
+    """Optimal deformation of one triangle (Eq. 7 / 12-14) and its sensitivity weights (Eq. 17).
+
+    Parameters
+    ----------
+    problem : TriangleProblem
+        ``problem.evaluate((k, 4)) -> (k,)`` gives E; ``problem.uv_area`` (texels) and ``problem.is_constant``
+        are used too.
+    epsilon : float, optional
+        Loss bound (the paper: 0.01).
+    evaluations : int, optional
+        Loss evaluations of the optimization (the paper: 100); the weights add
+        ``ROTATION_SAMPLES + STRETCH_SAMPLES``. The constrained form may stop earlier (optimal corner).
+    lambda_min : float, optional
+        Lower bound of ``lambda1, lambda2``.
+    formulation : {"constrained", "barrier"}, optional
+        See the module notes; default "constrained" for the fast backend, "barrier" for skopt.
+    backend : {"fast", "skopt"}, optional
+        Bayesian optimization engine (:mod:`.bayesopt`).
+    seed : int, optional
+    weights : bool, optional
+        Compute ``w_R, w_S`` (otherwise NaN, no extra evaluations).
+
+    Returns
+    -------
+    TriangleOptimum
+
+    References
+    ----------
+    Sun et al. 2022, Eq. 7, 12-14, 17.
+    """
+    formulation = _check_options(epsilon, evaluations, lambda_min, formulation, backend)
+    identity = np.array([0.0, 1.0, 1.0, 0.0])
+    corner = np.array([0.0, lambda_min, lambda_min, 0.0])
+    if problem.is_constant:
+        return TriangleOptimum(corner, 0.0, 0.0, 0.0, 0, True)
+    seen_params, seen_loss = [], []
+
+    def loss(params):
+        values = np.asarray(problem.evaluate(params), dtype=np.float64)
+        seen_params.append(np.array(params, dtype=np.float64))
+        seen_loss.append(values)
+        return values
+
+    bounds = _bounds(lambda_min)
+    periodic = [True, False, False, False]
+    if formulation == "constrained":
+        offset = 0.1 * epsilon
+        polish = min(POLISH_EVALUATIONS, evaluations // 5) if polish_evaluations is None else polish_evaluations
+        found = bayesopt.minimize_constrained(
+            lambda P: P[:, 1] * P[:, 2], lambda P: np.log(loss(P) + offset), bounds,
+            threshold=math.log(epsilon + offset), evaluations=evaluations - polish, x0=np.vstack([identity, corner]),
+            periodic=periodic, cost_lower_bound=lambda_min * lambda_min, seed=seed)
+        if found.feasible and found.fun > lambda_min * lambda_min * (1 + 1e-9):
+            _polish(loss, found.x, epsilon, lambda_min, polish)
+    else:
+        area = float(problem.uv_area)
+
+        def objective(P):
+            return P[:, 1] * P[:, 2] * area + finite_barrier(loss(P), epsilon)
+
+        bayesopt.minimize(objective, bounds, evaluations=evaluations, x0=identity[None, :],
+                          periodic=periodic if backend == "fast" else None, seed=seed, backend=backend)
+    params = np.vstack(seen_params)
+    losses = np.concatenate(seen_loss)
+    feasible = losses <= epsilon
+    if feasible.any():
+        criterion = (params[:, 1] * params[:, 2] if formulation == "constrained"
+                     else _barrier_objective(params, losses, float(problem.uv_area), epsilon))
+        best = int(np.flatnonzero(feasible)[np.argmin(criterion[feasible])])
+    else:
+        best = int(np.argmin(losses))
+    w_R = w_S = math.nan
+    used = len(losses)
+    if weights:
+        w_R, w_S, extra = sensitivity_weights(problem, params[best], lambda_min=lambda_min)
+        used += extra
+    return TriangleOptimum(params[best].copy(), float(losses[best]), w_R, w_S, used, bool(feasible[best]))
+
+
+# ---------------------------------------------------------------------------------------------------- many
+@dataclasses.dataclass(frozen=True)
+class TrianglewiseResult:
+    """Output of :func:`optimize_triangles`, one row per optimized face.
+
+    Attributes
+    ----------
+    faces : (k,) int64 ndarray
+        Face indices (all faces ``0..m-1`` by default).
+    params : (k, 4) float64 ndarray
+        ``(alpha, lambda1, lambda2, beta)`` per face (Eq. 13-14).
+    loss : (k,) float64 ndarray
+        E at ``params``.
+    w_R, w_S : (k,) float64 ndarray
+        Sensitivity weights (Eq. 17), non-negative.
+    evaluations : (k,) int64 ndarray
+        Loss evaluations used per face (0 for constant one-rings).
+    feasible : (k,) bool ndarray
+        ``loss <= epsilon``.
+    is_constant : (k,) bool ndarray
+        Faces skipped because their one-ring texture is constant.
+    epsilon, lambda_min : float
+    formulation, backend : str
+    """
+
+    faces: np.ndarray
+    params: np.ndarray
+    loss: np.ndarray
+    w_R: np.ndarray
+    w_S: np.ndarray
+    evaluations: np.ndarray
+    feasible: np.ndarray
+    is_constant: np.ndarray
+    epsilon: float
+    lambda_min: float
+    formulation: str
+    backend: str
+
+
+def _face_seed(seed, face):
+    return int(np.random.SeedSequence([int(seed), int(face)]).generate_state(1)[0])
+
+
+def _optimize_chunk(state, faces):
+    """Worker body: prepare the chunk's problems once, optimize each face. Returns plain arrays."""
+    options = state["options"]
+    batch = prepare_triangles(state["V"], state["F"], state["uv"], state["luma"], faces,
+                              screen_pixels=options["screen_pixels"], adjacency=state["adjacency"])
+    rows = []
+    for face, problem in zip(faces, batch):
+        found = optimize_triangle(problem, epsilon=options["epsilon"], evaluations=options["evaluations"],
+                                  lambda_min=options["lambda_min"], formulation=options["formulation"],
+                                  backend=options["backend"], seed=_face_seed(options["seed"], face))
+        rows.append((found.params, found.loss, found.w_R, found.w_S, found.evaluations, found.feasible,
+                     bool(problem.is_constant)))
+    return np.asarray(faces), rows
+
+
+def _losses_chunk(state, faces):
+    """Worker body for :func:`losses_at`: E of the given deformation rows."""
+    batch = prepare_triangles(state["V"], state["F"], state["uv"], state["luma"], faces,
+                              screen_pixels=state["options"]["screen_pixels"], adjacency=state["adjacency"])
+    params = state["options"]["params"]
+    out = np.empty(len(faces))
+    for row, (face, problem) in enumerate(zip(faces, batch)):
+        out[row] = problem.evaluate(params[face])[0] if np.all(np.isfinite(params[face])) else np.inf
+    return np.asarray(faces), out
+
+
+_WORKER_STATE = {}
+
+
+def _worker_init(state):
+    _WORKER_STATE.clear()
+    _WORKER_STATE.update(state)
+    # Worker processes split the cores among themselves: one thread each for BLAS and numba.
+    with contextlib.suppress(Exception):
+        import threadpoolctl
+
+        threadpoolctl.threadpool_limits(1)
+
+
+def _worker_task(kind, faces):
+    return (_optimize_chunk if kind == "optimize" else _losses_chunk)(_WORKER_STATE, faces)
+
+
+# Run in each spawned worker before any task is unpickled (as ``exec(source, namespace)``): registers the
+# parents of this package as bare namespace modules (their ``__init__`` never runs), then imports this module
+# under the same name as in the parent and hands it the shared arrays.
+_BOOTSTRAP = """
+import importlib, sys, types
+for name, path in parents:
+    if name not in sys.modules:
+        module = types.ModuleType(name)
+        module.__path__ = [path]
+        sys.modules[name] = module
+importlib.import_module(module_name)._worker_init(state)
+"""
+
+
+def _package_parents():
+    """``(name, directory)`` of every package above ``core``, outermost first."""
+    core_package = __name__.rsplit(".", 1)[0]  # e.g. bl_ext.user_default.perceptual_uv.core
+    names = core_package.split(".")[:-1]
+    directory = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the extension folder
+    parents = []
+    for depth in range(len(names), 0, -1):
+        parents.append((".".join(names[:depth]), directory))
+        directory = os.path.dirname(directory)
+    return parents[::-1]
+
+
+def _looks_like_python(path):
+    name = os.path.basename(path or "").lower()
+    return bool(path) and os.path.isfile(path) and name.startswith("python")
+
+
+def _python_executable():
+    """A Python interpreter for worker processes (inside Blender ``sys.executable`` may be Blender)."""
+    candidates = [sys.executable, getattr(sys, "_base_executable", None)]
+    version = f"{sys.version_info.major}.{sys.version_info.minor}"
+    for prefix in (sys.prefix, sys.base_prefix, sys.exec_prefix):
+        if sys.platform == "win32":
+            candidates += [os.path.join(prefix, "python.exe"), os.path.join(prefix, "bin", "python.exe")]
+        else:
+            candidates += [os.path.join(prefix, "bin", f"python{version}"), os.path.join(prefix, "bin", "python3")]
+    return next((path for path in candidates if _looks_like_python(path)), None)
+
+
+@contextlib.contextmanager
+def _spawn_environment():
+    """Environment of the workers while they start: one BLAS/numba thread each, no re-import of ``__main__``."""
+    saved_env = {key: os.environ.get(key) for key in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                                         "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}
+    main = sys.modules.get("__main__")
+    try:
+        for key in saved_env:
+            os.environ[key] = "1"
+        # Spawn re-runs the parent's main script in each child unless __main__ has no file (Blender's scripts
+        # and the CLI must not run again in a worker); the workers only need this module.
+        sys.modules["__main__"] = types.ModuleType("__main__")
+        yield
+    finally:
+        if main is not None:
+            sys.modules["__main__"] = main
+        for key, value in saved_env.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _make_pool(workers, state):
+    import multiprocessing
+
+    executable = _python_executable()
+    if executable is None:
+        return None
+    context = multiprocessing.get_context("spawn")
+    if not _looks_like_python(sys.executable):
+        context.set_executable(executable)
+    namespace = {"parents": _package_parents(), "module_name": __name__, "state": state}
+    with _spawn_environment():
+        return context.Pool(workers, initializer=exec, initargs=(_BOOTSTRAP, namespace))
+
+
+def _chunks(faces, size):
+    return [faces[start:start + size] for start in range(0, len(faces), size)]
+
+
+def _run_chunks(kind, state, faces, workers, chunk_size):
+    """Yield ``(faces, output)`` per chunk, in worker processes or here; ``(done, total)`` progress between."""
+    chunks = _chunks(faces, chunk_size)
+    if workers == 0:
+        workers = os.cpu_count() or 1
+    workers = min(workers, len(chunks))
+    pool = _make_pool(workers, state) if workers > 1 else None
+    if pool is None:
+        for chunk in chunks:
+            yield (_optimize_chunk if kind == "optimize" else _losses_chunk)(state, chunk)
+        return
+    try:
+        for output in pool.imap_unordered(_chunk_call, [(kind, chunk) for chunk in chunks]):
+            yield output
+        pool.close()
+        pool.join()
+    finally:
+        pool.terminate()
+
+
+def _chunk_call(task):
+    return _worker_task(*task)
+
+
+def _check_mesh(V, F, uv, luma, faces):
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        raise ValueError(f"F must be an integer array of shape (m, 3), got {F.dtype} {F.shape}")
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
+    if uv.shape != (len(F), 3, 2):
+        raise ValueError(f"uv must have shape (m, 3, 2) = {(len(F), 3, 2)}, got {uv.shape}")
+    from .loss import texture_luma
+
+    luma = texture_luma(luma)
+    faces = np.arange(len(F), dtype=np.int64) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)
+    if faces.size and (faces.min() < 0 or faces.max() >= len(F)):
+        raise ValueError(f"faces must be indices in 0..{len(F) - 1}")
+    return V, F, uv, luma, faces
+
+
+def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
+                            lambda_min=LAMBDA_MIN, formulation=None, backend="fast", workers=0, seed=0, faces=None,
+                            chunk_size=16):
+    """Generator form of :func:`optimize_triangles`: yields ``(done, total)`` faces, returns the result.
+
+    Use ``result = yield from iter_optimize_triangles(...)`` in a pipeline generator, or drive it one step per
+    timer tick in a modal operator; closing the generator stops the worker processes.
+    """
+    formulation = _check_options(epsilon, evaluations, lambda_min, formulation, backend)
+    if int(workers) != workers or workers < 0:
+        raise ValueError(f"workers must be an integer >= 0, got {workers}")
+    if chunk_size < 1:
+        raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
+    V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
+    total = len(faces)
+    state = {"V": V, "F": F, "uv": uv, "luma": luma, "adjacency": one_ring_faces(F, V=V),
+             "options": {"epsilon": float(epsilon), "evaluations": int(evaluations),
+                         "screen_pixels": int(screen_pixels), "lambda_min": float(lambda_min),
+                         "formulation": formulation, "backend": backend, "seed": int(seed)}}
+    row_of = {int(face): row for row, face in enumerate(faces)}
+    params = np.empty((total, 4))
+    loss, w_R, w_S = np.empty(total), np.empty(total), np.empty(total)
+    used = np.zeros(total, np.int64)
+    feasible, constant = np.zeros(total, bool), np.zeros(total, bool)
+    done = 0
+    yield done, total
+    with contextlib.closing(_run_chunks("optimize", state, faces, int(workers), int(chunk_size))) as chunks:
+        for chunk, rows in chunks:
+            for face, row in zip(chunk, rows):
+                i = row_of[int(face)]
+                params[i], loss[i], w_R[i], w_S[i], used[i], feasible[i], constant[i] = row
+            done += len(chunk)
+            yield done, total
+    return TrianglewiseResult(faces, params, loss, w_R, w_S, used, feasible, constant, float(epsilon),
+                              float(lambda_min), formulation, backend)
+
+
+def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64, lambda_min=LAMBDA_MIN,
+                       formulation=None, backend="fast", workers=0, seed=0, faces=None, chunk_size=16,
+                       progress=None):
+    """Triangle-wise stage: optimal deformation and sensitivity weights of every triangle.
+
+    Parameters
+    ----------
+    V : (n, 3) array_like of float64
+    F : (m, 3) array_like of int64
+    uv : (m, 3, 2) array_like of float64
+        Input per-corner UVs.
+    luma : (h, w) or (h, w, c) array_like in [0, 1]
+        Texture, row 0 = bottom; colour is reduced to Rec. 601 luma.
+    epsilon : float, optional
+        Bound on the per-triangle perceptual loss (GMSD), the paper's 0.01.
+    evaluations : int, optional
+        Loss evaluations of the optimization per triangle (the paper: 100); the weights add 24.
+    screen_pixels : int, optional
+        Side of the per-triangle view (App. A: 64).
+    lambda_min : float, optional
+        Lower bound of the stretch eigenvalues.
+    formulation : {"constrained", "barrier"}, optional
+        See the module notes.
+    backend : {"fast", "skopt"}, optional
+        Bayesian optimization engine; "skopt" is the paper's setting (~15 s per triangle).
+    workers : int, optional
+        Worker processes; 0 = one per core, 1 = in this process.
+    seed : int, optional
+        Results depend only on the seed, not on ``workers`` or ``chunk_size``.
+    faces : (k,) array_like of int, optional
+        Optimize only these faces (rows of the result follow this order).
+    chunk_size : int, optional
+        Faces per task (and per progress step).
+    progress : callable, optional
+        Called as ``progress(done, total)``.
+
+    Returns
+    -------
+    TrianglewiseResult
+
+    References
+    ----------
+    Sun et al. 2022, Sec. 4.1, Eq. 7, 12-14, 17.
+    """
+    stage = iter_optimize_triangles(V, F, uv, luma, epsilon=epsilon, evaluations=evaluations,
+                                    screen_pixels=screen_pixels, lambda_min=lambda_min, formulation=formulation,
+                                    backend=backend, workers=workers, seed=seed, faces=faces,
+                                    chunk_size=chunk_size)
+    while True:
+        try:
+            done, total = next(stage)
+        except StopIteration as finished:
+            return finished.value
+        if progress is not None:
+            progress(done, total)
+
+
+def _params_from_jacobians(J):
+    """``(alpha, lambda1, lambda2, beta)`` with ``J = R(alpha) S(lambda1, lambda2, beta)`` (polar + eigen)."""
+    U, sigma, Wt = np.linalg.svd(J)
+    R = U @ Wt
+    S = np.swapaxes(Wt, -1, -2) @ (sigma[..., :, None] * Wt)
+    alpha = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    eigenvalues, vectors = np.linalg.eigh(S)
+    beta = np.arctan2(vectors[..., 1, 1], vectors[..., 0, 1])
+    return np.column_stack([alpha, eigenvalues[:, 1], eigenvalues[:, 0], beta])
+
+
+def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, faces=None, workers=1, chunk_size=64):
+    """Triangle-wise loss E of a new UV map, each triangle measured with its own deformation.
+
+    The deformation of triangle ``i`` is the affine map from its input UVs to ``new_uv`` (in texel units of
+    the input texture, the translation ignored as in Eq. 14); E is the loss of Sec. 4.1.1 with that Jacobian.
+
+    Parameters
+    ----------
+    V, F, uv, luma
+        As in :func:`optimize_triangles` (``uv`` the input UVs the texture belongs to).
+    new_uv : (m, 3, 2) array_like
+        New UVs per corner in the input's UV units (e.g. the mesh-wise result before packing).
+    screen_pixels : int, optional
+    faces : (k,) array_like of int, optional
+    workers : int, optional
+        As in :func:`optimize_triangles` (default in this process).
+    chunk_size : int, optional
+
+    Returns
+    -------
+    (k,) ndarray
+        E per face; ``inf`` where the new triangle is flipped or degenerate, or the input one degenerate.
+    """
+    V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
+    new_uv = np.asarray(new_uv, dtype=np.float64)
+    if new_uv.shape != uv.shape:
+        raise ValueError(f"new_uv must have the shape of uv {uv.shape}, got {new_uv.shape}")
+    h, w = luma.shape
+    scale = np.array([w, h], dtype=np.float64)
+    old_edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=-1) * scale[:, None]
+    new_edges = np.stack([new_uv[:, 1] - new_uv[:, 0], new_uv[:, 2] - new_uv[:, 0]], axis=-1) * scale[:, None]
+    old_det = np.linalg.det(old_edges)
+    valid = np.abs(old_det) > 1e-12 * np.maximum(np.abs(old_edges).max(axis=(1, 2)) ** 2, 1e-300)
+    J = np.zeros_like(old_edges)
+    J[valid] = new_edges[valid] @ np.linalg.inv(old_edges[valid])
+    valid &= np.linalg.det(J) > 0
+    params = np.full((len(F), 1, 4), np.inf)
+    if valid.any():
+        params[valid, 0] = _params_from_jacobians(J[valid])
+    state = {"V": V, "F": F, "uv": uv, "luma": luma, "adjacency": one_ring_faces(F, V=V),
+             "options": {"screen_pixels": int(screen_pixels), "params": params}}
+    out = np.empty(len(faces))
+    row_of = {int(face): row for row, face in enumerate(faces)}
+    with contextlib.closing(_run_chunks("losses", state, faces, int(workers), int(chunk_size))) as chunks:
+        for chunk, values in chunks:
+            for face, value in zip(chunk, values):
+                out[row_of[int(face)]] = value
+    return out

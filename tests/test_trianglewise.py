@@ -1,0 +1,302 @@
+import dataclasses
+import math
+import os
+import pathlib
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from perceptual_uv.core import trianglewise as tw
+from perceptual_uv.core.deformation import jacobian
+from perceptual_uv.core.loss import triangle_problem
+
+def grid_mesh(cells=6, uv_low=0.25, uv_high=0.75):
+    """Flat square of ``2 cells^2`` triangles in z = 0, UVs an axis-aligned square of the texture."""
+    t = np.linspace(0.0, 1.0, cells + 1)
+    X, Y = np.meshgrid(t, t)
+    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    F = []
+    for i in range(cells):
+        for j in range(cells):
+            a = i * (cells + 1) + j
+            F += [[a, a + 1, a + cells + 2], [a, a + cells + 2, a + cells + 1]]
+    F = np.array(F, dtype=np.int64)
+    uv = (uv_low + (uv_high - uv_low) * V[:, :2])[F]
+    return V, F, uv
+
+
+CENTRE_FACE = 36  # inside the grid: its one-ring is complete
+SIZE = 64
+
+
+def _stripes(period_texels=2):
+    columns = (np.arange(SIZE) // (period_texels // 2)) % 2
+    return np.tile(columns[None, :].astype(np.float64), (SIZE, 1))
+
+
+def _smooth_texture():
+    y, x = np.mgrid[0:SIZE, 0:SIZE] + 0.5
+    return 0.5 + 0.25 * np.sin(2 * np.pi * x / 9.0) * np.cos(2 * np.pi * y / 13.0) + 0.2 * np.sin(
+        2 * np.pi * (x + y) / 23.0)
+
+
+class AnalyticProblem:
+    """Stand-in with a closed-form E, for the weights' arithmetic."""
+
+    is_constant = False
+    uv_area = 10.0
+
+    def __init__(self, loss):
+        self.loss = loss
+
+    def evaluate(self, params):
+        return self.loss(np.atleast_2d(params))
+
+
+# --- objective pieces ----------------------------------------------------------------------------------------
+
+
+def test_finite_barrier_matches_eq12_inside_and_continues_smoothly():
+    eps = 0.01
+    inside = np.array([0.0, 0.005, 0.0099])
+    np.testing.assert_allclose(tw.finite_barrier(inside, eps), -np.log(eps - inside))
+    delta = eps / 100
+    joint = eps - delta
+    h = 1e-9
+    left = tw.finite_barrier([joint - h], eps)[0]
+    right = tw.finite_barrier([joint + h], eps)[0]
+    assert right - left == pytest.approx(2 * h / delta, rel=1e-3)  # continuous, same slope on both sides
+    slope_right = (tw.finite_barrier([joint + 2 * h], eps)[0] - right) / h
+    assert slope_right == pytest.approx(1 / delta, rel=1e-3)  # slope of -log(eps - x) at the joint
+    values = tw.finite_barrier([0.02, 0.1, 0.5, 5.0], eps)
+    assert np.all(np.isfinite(values)) and np.all(np.diff(values) > 0)
+    assert values[-1] == pytest.approx(-math.log(delta) + math.log1p((5.0 - joint) / delta))
+
+
+def test_params_from_jacobians_round_trip():
+    params = np.array([[0.3, 0.9, 0.2, 1.1], [1.2, 0.5, 0.5, 0.0], [-0.4, 1.5, 0.7, 0.3]])
+    R, S = jacobian(params)
+    recovered = tw._params_from_jacobians(R @ S)
+    R2, S2 = jacobian(recovered)
+    np.testing.assert_allclose(R2 @ S2, R @ S, atol=1e-12)
+    np.testing.assert_allclose(np.sort(recovered[:, 1:3], axis=1), np.sort(params[:, 1:3], axis=1), atol=1e-12)
+
+
+# --- weights (Eq. 17) ----------------------------------------------------------------------------------------
+
+
+def test_rotation_weight_of_sin_squared_is_exact():
+    # E = a sin^2(2 alpha): on [0, pi/2) the mean is 1/2 and E[sin^4] = 3/8, so Var = a^2 / 8; the 8-point
+    # midpoint rule integrates these trigonometric polynomials exactly.
+    a = 0.03
+    problem = AnalyticProblem(lambda P: a * np.sin(2 * P[:, 0]) ** 2)
+    w_R, w_S, used = tw.sensitivity_weights(problem, [0.4, 0.5, 0.6, 0.2])
+    assert w_R == pytest.approx(a * a / 8, rel=1e-12)
+    assert w_S == pytest.approx(0.0, abs=1e-20)  # E does not depend on (lambda1, lambda2, beta)
+    assert used == tw.ROTATION_SAMPLES + tw.STRETCH_SAMPLES
+
+
+def test_stretch_weight_of_linear_loss_near_uniform_variance():
+    # E = b lambda1 with lambda1 ~ U[0.1, 1]: Var = b^2 0.9^2 / 12; 16 scrambled Sobol points get within 10 %.
+    b = 0.02
+    problem = AnalyticProblem(lambda P: b * P[:, 1])
+    w_R, w_S, _ = tw.sensitivity_weights(problem, [0.4, 0.5, 0.6, 0.2])
+    assert w_R == pytest.approx(0.0, abs=1e-20)  # E does not depend on alpha
+    assert w_S == pytest.approx(b * b * 0.81 / 12, rel=0.1)
+
+
+# --- optimization on real loss problems ----------------------------------------------------------------------
+
+
+def test_constant_texture_skips_to_smallest_area():
+    V, F, uv = grid_mesh()
+    problem = triangle_problem(V, F, uv, np.full((SIZE, SIZE), 0.4), CENTRE_FACE)
+    assert problem.is_constant
+    found = tw.optimize_triangle(problem)
+    np.testing.assert_array_equal(found.params, [0.0, tw.LAMBDA_MIN, tw.LAMBDA_MIN, 0.0])
+    assert (found.loss, found.w_R, found.w_S, found.evaluations) == (0.0, 0.0, 0.0, 0)
+
+
+def test_constant_texture_optimizer_reaches_box_minimum():
+    # The same triangle with the skip disabled: E = 0 everywhere, so the optimizer must return area
+    # lambda_min^2 (the first two evaluations already contain the corner) and zero weights.
+    V, F, uv = grid_mesh()
+    problem = triangle_problem(V, F, uv, np.full((SIZE, SIZE), 0.4), CENTRE_FACE)
+    found = tw.optimize_triangle(dataclasses.replace(problem, is_constant=False))
+    assert found.params[1] * found.params[2] == pytest.approx(tw.LAMBDA_MIN ** 2)
+    assert found.loss == pytest.approx(0.0, abs=1e-12)
+    assert found.w_R == pytest.approx(0.0, abs=1e-20) and found.w_S == pytest.approx(0.0, abs=1e-20)
+    assert found.evaluations == 2 + tw.ROTATION_SAMPLES + tw.STRETCH_SAMPLES
+
+
+def test_vertical_stripes_keep_resolution_across_and_shrink_along():
+    # Columns alternate 0/1 (the texel frequency), constant along v. By hand: the new texels must keep the
+    # x spacing and stay aligned with the stripes, or the 1-texel period aliases (a 5-degree turn already
+    # gives E ~ 0.17 >> epsilon); along v the signal is constant, so that direction can shrink to lambda_min.
+    # Hence grad phi = R(k pi/2) diag(1, s) with s small: A e_x of length 1 on a lattice axis, A e_y
+    # perpendicular to it and short.
+    V, F, uv = grid_mesh()
+    problem = triangle_problem(V, F, uv, _stripes(2), CENTRE_FACE)
+    found = tw.optimize_triangle(problem, seed=0)
+    R, S = jacobian(found.params)
+    A = R @ S
+    across, along = A[:, 0], A[:, 1]
+    assert found.loss <= 0.01
+    assert np.linalg.norm(across) == pytest.approx(1.0, abs=0.03)
+    angle = np.degrees(np.arctan2(across[1], across[0])) % 90
+    assert min(angle, 90 - angle) < 2.0  # aligned with the texel grid
+    assert np.linalg.norm(along) < 0.25
+    assert abs(across @ along) < 0.05 * np.linalg.norm(along)
+    # and alpha, beta themselves sit on the grid (0 or pi/2 up to the box's periodic ends)
+    for angle in (found.params[0], found.params[3]):
+        assert min(angle % (np.pi / 2), np.pi / 2 - angle % (np.pi / 2)) < np.radians(2.0)
+    assert found.w_R > 0 and found.w_S > 0
+
+
+def test_larger_epsilon_gives_no_larger_area():
+    V, F, uv = grid_mesh()
+    problem = triangle_problem(V, F, uv, _smooth_texture(), CENTRE_FACE)
+    tight = tw.optimize_triangle(problem, epsilon=0.003, seed=3)
+    loose = tw.optimize_triangle(problem, epsilon=0.03, seed=3)
+    assert tight.loss <= 0.003 and loose.loss <= 0.03
+    assert loose.params[1] * loose.params[2] <= tight.params[1] * tight.params[2]
+
+
+def test_barrier_formulation_feasible_and_weights_nonnegative():
+    V, F, uv = grid_mesh()
+    problem = triangle_problem(V, F, uv, _smooth_texture(), CENTRE_FACE)
+    found = tw.optimize_triangle(problem, formulation="barrier", evaluations=40, seed=1)
+    assert found.feasible and found.loss <= 0.01
+    assert found.params[1] * found.params[2] < 1.0
+    assert found.w_R >= 0 and found.w_S >= 0
+    # the reported loss is the loss at the reported parameters
+    assert problem.evaluate(found.params)[0] == pytest.approx(found.loss, abs=1e-12)
+
+
+def test_option_validation():
+    V, F, uv = grid_mesh()
+    with pytest.raises(ValueError, match="epsilon"):
+        tw.optimize_triangles(V, F, uv, _stripes(), epsilon=0.0)
+    with pytest.raises(ValueError, match="skopt backend"):
+        tw.optimize_triangles(V, F, uv, _stripes(), backend="skopt", formulation="constrained")
+    with pytest.raises(ValueError, match="faces"):
+        tw.optimize_triangles(V, F, uv, _stripes(), faces=[len(F)])
+    with pytest.raises(ValueError, match="uv must have shape"):
+        tw.optimize_triangles(V, F, uv[:-1], _stripes())
+
+
+# --- many triangles ------------------------------------------------------------------------------------------
+
+
+def _small_run(**options):
+    V, F, uv = grid_mesh(cells=3)
+    texture = _smooth_texture()
+    return tw.optimize_triangles(V, F, uv, texture, evaluations=20, **options)
+
+
+def test_optimize_triangles_rows_follow_faces_and_are_deterministic():
+    first = _small_run(faces=[5, 2, 7], workers=1, seed=4, chunk_size=2)
+    again = _small_run(faces=[5, 2, 7], workers=1, seed=4, chunk_size=1)
+    np.testing.assert_array_equal(first.faces, [5, 2, 7])
+    for name in ("params", "loss", "w_R", "w_S", "evaluations"):
+        np.testing.assert_array_equal(getattr(first, name), getattr(again, name))
+    assert np.all(first.w_R >= 0) and np.all(first.w_S >= 0)
+    assert np.all(first.loss[first.feasible] <= 0.01)
+    other_seed = _small_run(faces=[5, 2, 7], workers=1, seed=5)
+    assert not np.array_equal(first.params, other_seed.params)
+
+
+def test_iter_optimize_triangles_yields_progress_then_result():
+    V, F, uv = grid_mesh(cells=2)
+    stage = tw.iter_optimize_triangles(V, F, uv, _smooth_texture(), evaluations=10, workers=1, chunk_size=3)
+    progress = []
+    while True:
+        try:
+            progress.append(next(stage))
+        except StopIteration as finished:
+            result = finished.value
+            break
+    assert progress == [(0, 8), (3, 8), (6, 8), (8, 8)]
+    assert result.params.shape == (8, 4) and result.evaluations.shape == (8,)
+    calls = []
+    tw.optimize_triangles(V, F, uv, _smooth_texture(), evaluations=10, workers=1, chunk_size=4,
+                          progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(0, 8), (4, 8), (8, 8)]
+
+
+def test_losses_at_identity_is_zero_and_flips_are_infinite():
+    V, F, uv = grid_mesh(cells=3)
+    texture = _smooth_texture()
+    np.testing.assert_allclose(tw.losses_at(V, F, uv, texture, uv), 0.0, atol=1e-9)
+    flipped = uv.copy()
+    flipped[4] = flipped[4][[0, 2, 1]]
+    losses = tw.losses_at(V, F, uv, texture, flipped)
+    assert np.isinf(losses[4]) and np.isfinite(np.delete(losses, 4)).all()
+
+
+def test_losses_at_equals_problem_loss_of_the_jacobian():
+    # New UVs = one triangle deformed by A about its barycentre: losses_at must evaluate E(A) for it.
+    V, F, uv = grid_mesh(cells=3)
+    texture = _smooth_texture()
+    params = np.array([0.3, 0.8, 0.5, 0.7])
+    R, S = jacobian(params)
+    face = 7
+    new_uv = uv.copy()
+    centre = uv[face].mean(axis=0)
+    new_uv[face] = (uv[face] - centre) @ (R @ S).T + centre  # square texture: texel and UV Jacobians agree
+    got = tw.losses_at(V, F, uv, texture, new_uv, faces=[face])[0]
+    expected = triangle_problem(V, F, uv, texture, face).evaluate(params)[0]
+    assert got == pytest.approx(expected, rel=1e-9, abs=1e-12)
+
+
+def test_python_executable_found_when_running_inside_blender(monkeypatch):
+    monkeypatch.setattr(sys, "executable", "/opt/blender/blender")
+    found = tw._python_executable()
+    assert found is not None and os.path.basename(found).startswith("python") and os.path.isfile(found)
+
+
+def test_package_parents_cover_the_package_chain():
+    parents = tw._package_parents()
+    names = [name for name, _ in parents]
+    assert names == ["perceptual_uv"]
+    assert pathlib.Path(parents[0][1], "core", "trianglewise.py").is_file()
+
+
+@pytest.mark.slow
+def test_worker_processes_give_identical_results_even_under_a_blender_style_package_name(tmp_path):
+    # A child interpreter imports the package as bl_ext.user_default.perceptual_uv (as Blender does, with
+    # parents that are not importable from disk) and pretends sys.executable is Blender; the spawned workers
+    # must still start, and their results must equal the in-process ones.
+    package_dir = pathlib.Path(tw.__file__).resolve().parents[1]
+    script = tmp_path / "run.py"
+    script.write_text(textwrap.dedent(f"""
+        import importlib, importlib.util, sys, types
+        import numpy as np
+        for name in ("bl_ext", "bl_ext.user_default"):
+            module = types.ModuleType(name)
+            module.__path__ = []
+            sys.modules[name] = module
+        spec = importlib.util.spec_from_file_location(
+            "bl_ext.user_default.perceptual_uv", {str(package_dir / "__init__.py")!r},
+            submodule_search_locations=[{str(package_dir)!r}])
+        package = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = package
+        spec.loader.exec_module(package)
+        tw = importlib.import_module("bl_ext.user_default.perceptual_uv.core.trianglewise")
+        sys.path.insert(0, {str(pathlib.Path(__file__).parent)!r})
+        from test_trianglewise import grid_mesh, _smooth_texture
+        sys.executable = "/opt/blender/blender"
+        V, F, uv = grid_mesh(cells=3)
+        kwargs = dict(evaluations=15, seed=2, chunk_size=3)
+        pooled = tw.optimize_triangles(V, F, uv, _smooth_texture(), workers=2, **kwargs)
+        local = tw.optimize_triangles(V, F, uv, _smooth_texture(), workers=1, **kwargs)
+        assert np.array_equal(pooled.params, local.params), (pooled.params, local.params)
+        assert np.array_equal(pooled.w_S, local.w_S)
+        print("OK", len(pooled.faces))
+    """))
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.strip().endswith("OK 18")
