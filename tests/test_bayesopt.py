@@ -248,9 +248,9 @@ def test_minimize_constrained_by_hand():
     result = minimize_constrained(cost, constraint, [[0.1, 1], [0.1, 1]], threshold=0.5, x0=[[1, 1]],
                                   evaluations=50, seed=0)
     assert result.feasible
-    assert 0.25 - 1e-9 <= result.fun < 0.25 + 0.01
-    np.testing.assert_allclose(result.x, [0.5, 0.5], atol=0.1)
-    assert constraint(result.x[None])[0] <= 0.5
+    assert 0.25 - 1e-9 <= result.fun < 0.25 + 0.005
+    # The cost is flat to second order along the circle near (1/2, 1/2); the constraint must be active.
+    assert 0.45 <= constraint(result.x[None])[0] <= 0.5
 
 
 def test_minimize_constrained_stops_at_known_lower_bound():
