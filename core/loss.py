@@ -323,44 +323,21 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
     n_cells = 0
     last_cell = -1
     c = -1
-    # Runs of pixels in one cell are summed in registers and flushed when the cell changes.
-    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
-    for p in range(count + 1):
-        if p < count:
-            dx = points[p, 0] - cx
-            dy = points[p, 1] - cy
-            x = a00 * dx + a01 * dy + cx - 0.5
-            y = a10 * dx + a11 * dy + cy - 0.5
-            x0 = np.floor(x)
-            y0 = np.floor(y)
-            fx = x - x0
-            fy = y - y0
-            gx = int(x0) - ox
-            gy = int(y0) - oy
-            if gx < 0 or gy < 0 or gx >= width or gy >= height:
-                return False
-            cell = gy * width + gx
-        else:
-            cell = -2
+    for p in range(count):
+        dx = points[p, 0] - cx
+        dy = points[p, 1] - cy
+        x = a00 * dx + a01 * dy + cx - 0.5
+        y = a10 * dx + a11 * dy + cy - 0.5
+        x0 = np.floor(x)
+        y0 = np.floor(y)
+        frac[p, 0] = x - x0
+        frac[p, 1] = y - y0
+        gx = int(x0) - ox
+        gy = int(y0) - oy
+        if gx < 0 or gy < 0 or gx >= width or gy >= height:
+            return False
+        cell = gy * width + gx
         if cell != last_cell:
-            if c >= 0:
-                acc[c, 0] += s0
-                acc[c, 1] += s1
-                acc[c, 2] += s2
-                acc[c, 3] += s3
-                acc[c, 4] += s4
-                acc[c, 5] += s5
-                acc[c, 6] += s6
-                acc[c, 7] += s7
-                acc[c, 8] += s8
-                acc[c, 9] += s9
-                acc[c, 10] += s10
-                acc[c, 11] += s11
-                acc[c, 12] += s12
-                acc[c, 13] += s13
-                s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
-            if p == count:
-                break
             if dense:
                 c = grid[cell]
                 if c < 0:
@@ -382,28 +359,57 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
                 acc[c, :] = 0.0
                 n_cells += 1
             last_cell = cell
-        w0 = (1.0 - fx) * (1.0 - fy)
-        w1 = fx * (1.0 - fy)
-        w2 = (1.0 - fx) * fy
-        w3 = fx * fy
-        t = reference[p]
-        s0 += w0 * w0
-        s1 += w1 * w1
-        s2 += w2 * w2
-        s3 += w3 * w3
-        s4 += w0 * w1
-        s5 += w0 * w2
-        s6 += w0 * w3
-        s7 += w1 * w2
-        s8 += w1 * w3
-        s9 += w2 * w3
-        s10 += w0 * t
-        s11 += w1 * t
-        s12 += w2 * t
-        s13 += w3 * t
         pix_cell[p] = c
-        frac[p, 0] = fx
-        frac[p, 1] = fy
+    # Per-cell sums of the bilinear weight products; runs of pixels in one cell are summed in registers. The
+    # weights are (1 - fx, fx) x (1 - fy, fy), so the 10 products are 9 distinct products of the 3 entries
+    # of each factor's outer product (w0 w3 == w1 w2).
+    c = pix_cell[0] if count else -1
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
+    for p in range(count + 1):
+        if p == count or pix_cell[p] != c:
+            acc[c, 0] += s0
+            acc[c, 1] += s1
+            acc[c, 2] += s2
+            acc[c, 3] += s3
+            acc[c, 4] += s4
+            acc[c, 5] += s5
+            acc[c, 6] += s6
+            acc[c, 8] += s8
+            acc[c, 9] += s9
+            acc[c, 10] += s10
+            acc[c, 11] += s11
+            acc[c, 12] += s12
+            acc[c, 13] += s13
+            if p == count:
+                break
+            s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
+            c = pix_cell[p]
+        fx = frac[p, 0]
+        fy = frac[p, 1]
+        gx0 = 1.0 - fx
+        gy0 = 1.0 - fy
+        xa = gx0 * gx0
+        xb = gx0 * fx
+        xc = fx * fx
+        ya = gy0 * gy0
+        yb = gy0 * fy
+        yc = fy * fy
+        s0 += xa * ya
+        s1 += xc * ya
+        s2 += xa * yc
+        s3 += xc * yc
+        s4 += xb * ya
+        s5 += xa * yb
+        s6 += xb * yb
+        s8 += xc * yb
+        s9 += xb * yc
+        t = reference[p]
+        tx0 = t * gx0
+        tx1 = t * fx
+        s10 += tx0 * gy0
+        s11 += tx1 * gy0
+        s12 += tx0 * fy
+        s13 += tx1 * fy
     # Texels touched, numbered along the shorter side of the texel box (ordering A); in sparse boxes, row by
     # row (sorted keys), then grouped by connected component below.
     tw = width + 1
@@ -495,7 +501,7 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
         _add_off_diagonal(env, offset, first, t0, t1, acc[c, 4])
         _add_off_diagonal(env, offset, first, t0, t2, acc[c, 5])
         _add_off_diagonal(env, offset, first, t0, t3, acc[c, 6])
-        _add_off_diagonal(env, offset, first, t1, t2, acc[c, 7])
+        _add_off_diagonal(env, offset, first, t1, t2, acc[c, 6])  # w1 w2 == w0 w3
         _add_off_diagonal(env, offset, first, t1, t3, acc[c, 8])
         _add_off_diagonal(env, offset, first, t2, t3, acc[c, 9])
     for i in range(n_tex):
