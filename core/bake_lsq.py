@@ -214,6 +214,44 @@ def _envelope_cholesky_solve(env, offset, first, rhs):
             rhs[k] -= env[bi + k] * xi
 
 
+@njit(fastmath=True)
+def _band_cholesky_solve(band, rhs):
+    """Numba: solve with a symmetric band matrix, ``band[j, d] = A[j + d, j]`` (lower band, column-major).
+
+    Right-looking: after scaling column ``j`` its rank-1 update touches fixed-length contiguous rows, which
+    vectorize better than the envelope's variable-length dot products when the envelope is nearly a full band.
+    ``band`` is overwritten with ``L``; ``rhs`` with the solution.
+    """
+    count, width = band.shape
+    b = width - 1
+    for j in range(count):
+        d = np.sqrt(band[j, 0])
+        band[j, 0] = d
+        m = min(b, count - 1 - j)
+        inv = 1.0 / d
+        for k in range(1, m + 1):
+            band[j, k] *= inv
+        for k1 in range(1, m + 1):
+            l1 = band[j, k1]
+            if l1 == 0.0:
+                continue
+            row = j + k1
+            for k2 in range(k1, m + 1):
+                band[row, k2 - k1] -= band[j, k2] * l1
+    for j in range(count):
+        y = rhs[j] / band[j, 0]
+        rhs[j] = y
+        m = min(b, count - 1 - j)
+        for k in range(1, m + 1):
+            rhs[j + k] -= band[j, k] * y
+    for j in range(count - 1, -1, -1):
+        m = min(b, count - 1 - j)
+        s = 0.0
+        for k in range(1, m + 1):
+            s += band[j, k] * rhs[j + k]
+        rhs[j] = (rhs[j] - s) / band[j, 0]
+
+
 @njit
 def _render_ids(ids, weights, values):
     """Numba: ``sum_k weights[p, k] * values[ids[p, k]]`` for every pixel."""

@@ -35,8 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._jit import njit
-from .bake_lsq import (DEFAULT_RIDGE, _apply_renumber, _envelope_cholesky_solve, _envelope_first,
-                       _first_occurrence_ids, _group_by_component, _render_ids, _solve_normal_equations)
+from .bake_lsq import (DEFAULT_RIDGE, _apply_renumber, _band_cholesky_solve, _envelope_cholesky_solve,
+                       _envelope_first, _first_occurrence_ids, _group_by_component, _render_ids,
+                       _solve_normal_equations)
 from .camera import triangle_cameras
 from .gmsd import GMSD_C, _gmsd_padded_pooled_kernel, _pooled_gradient_kernel, luma as _to_luma
 from .one_ring import one_ring_faces
@@ -485,28 +486,51 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
     if cost_b < cost:
         cell_tex = cell_tex_b
         first = first_b
-    # Normal equations from the cells, then the envelope Cholesky solve.
-    offset = np.empty(n_tex + 1, np.int64)
-    offset[0] = 0
+        cost = cost_b
+    # Normal equations from the cells, then a Cholesky solve: in band storage when the envelope is nearly a
+    # full band (compact footprints; the band kernel vectorizes better), else in envelope storage.
+    bandwidth = 0
     for i in range(n_tex):
-        offset[i + 1] = offset[i] + (i - first[i] + 1)
-    env = np.zeros(offset[n_tex])
+        bandwidth = max(bandwidth, i - first[i])
     rhs = np.zeros(n_tex)
-    for c in range(n_cells):
-        for k in range(4):
-            i = cell_tex[c, k]
-            env[offset[i + 1] - 1] += acc[c, k]
-            rhs[i] += acc[c, 10 + k]
-        t0, t1, t2, t3 = cell_tex[c, 0], cell_tex[c, 1], cell_tex[c, 2], cell_tex[c, 3]
-        _add_off_diagonal(env, offset, first, t0, t1, acc[c, 4])
-        _add_off_diagonal(env, offset, first, t0, t2, acc[c, 5])
-        _add_off_diagonal(env, offset, first, t0, t3, acc[c, 6])
-        _add_off_diagonal(env, offset, first, t1, t2, acc[c, 6])  # w1 w2 == w0 w3
-        _add_off_diagonal(env, offset, first, t1, t3, acc[c, 8])
-        _add_off_diagonal(env, offset, first, t2, t3, acc[c, 9])
-    for i in range(n_tex):
-        env[offset[i + 1] - 1] += ridge
-    _envelope_cholesky_solve(env, offset, first, rhs)
+    if n_tex * bandwidth * bandwidth <= 1.5 * cost:
+        band = np.zeros((n_tex, bandwidth + 1))
+        for c in range(n_cells):
+            t0, t1, t2, t3 = cell_tex[c, 0], cell_tex[c, 1], cell_tex[c, 2], cell_tex[c, 3]
+            for k in range(4):
+                i = cell_tex[c, k]
+                band[i, 0] += acc[c, k]
+                rhs[i] += acc[c, 10 + k]
+            band[min(t0, t1), abs(t0 - t1)] += acc[c, 4]
+            band[min(t0, t2), abs(t0 - t2)] += acc[c, 5]
+            band[min(t0, t3), abs(t0 - t3)] += acc[c, 6]
+            band[min(t1, t2), abs(t1 - t2)] += acc[c, 6]  # w1 w2 == w0 w3
+            band[min(t1, t3), abs(t1 - t3)] += acc[c, 8]
+            band[min(t2, t3), abs(t2 - t3)] += acc[c, 9]
+        for i in range(n_tex):
+            band[i, 0] += ridge
+        _band_cholesky_solve(band, rhs)
+    else:
+        offset = np.empty(n_tex + 1, np.int64)
+        offset[0] = 0
+        for i in range(n_tex):
+            offset[i + 1] = offset[i] + (i - first[i] + 1)
+        env = np.zeros(offset[n_tex])
+        for c in range(n_cells):
+            for k in range(4):
+                i = cell_tex[c, k]
+                env[offset[i + 1] - 1] += acc[c, k]
+                rhs[i] += acc[c, 10 + k]
+            t0, t1, t2, t3 = cell_tex[c, 0], cell_tex[c, 1], cell_tex[c, 2], cell_tex[c, 3]
+            _add_off_diagonal(env, offset, first, t0, t1, acc[c, 4])
+            _add_off_diagonal(env, offset, first, t0, t2, acc[c, 5])
+            _add_off_diagonal(env, offset, first, t0, t3, acc[c, 6])
+            _add_off_diagonal(env, offset, first, t1, t2, acc[c, 6])  # w1 w2 == w0 w3
+            _add_off_diagonal(env, offset, first, t1, t3, acc[c, 8])
+            _add_off_diagonal(env, offset, first, t2, t3, acc[c, 9])
+        for i in range(n_tex):
+            env[offset[i + 1] - 1] += ridge
+        _envelope_cholesky_solve(env, offset, first, rhs)
     cell_value = np.empty((n_cells, 4))
     for c in range(n_cells):
         for k in range(4):

@@ -88,3 +88,30 @@ def test_validation():
     with pytest.raises(ValueError, match="target"):
         rebake([[0, 1, 2, 3]], [[1.0, 0, 0, 0]], [1.0, 2.0])
     assert rebake(np.zeros((0, 4), int), np.zeros((0, 4)), np.zeros(0))[0].size == 0
+
+
+def test_band_and_envelope_cholesky_match_dense_solve():
+    from perceptual_uv.core.bake_lsq import _band_cholesky_solve, _envelope_cholesky_solve
+
+    rng = np.random.default_rng(7)
+    n, b = 40, 5
+    M = np.zeros((n, n))
+    for d in range(b + 1):
+        vals = rng.standard_normal(n - d) * (d > 0)
+        M += np.diag(vals, d) + (np.diag(vals, -d) if d else 0)
+    M += np.diag(np.abs(M).sum(1) + 1.0)  # diagonally dominant: SPD
+    rhs = rng.standard_normal(n)
+    expected = np.linalg.solve(M, rhs)
+    band = np.zeros((n, b + 1))
+    for d in range(b + 1):
+        band[: n - d, d] = np.diagonal(M, d)
+    x = rhs.copy()
+    _band_cholesky_solve(band, x)
+    np.testing.assert_allclose(x, expected, atol=1e-12)
+    # The same matrix in envelope storage (rows from first[i] to i).
+    first = np.maximum(np.arange(n) - b, 0)
+    offset = np.concatenate([[0], np.cumsum(np.arange(n) - first + 1)])
+    env = np.concatenate([M[i, first[i]:i + 1] for i in range(n)])
+    x = rhs.copy()
+    _envelope_cholesky_solve(env, offset, first, x)
+    np.testing.assert_allclose(x, expected, atol=1e-12)
