@@ -46,8 +46,6 @@ from .raster import _rasterize_kernel, rasterize, sample_bilinear, texel_coordin
 __all__ = ["TriangleProblem", "TriangleBatch", "texture_luma", "triangle_problem", "prepare_triangles",
            "render_reference"]
 
-# Dense lookup grids above this many cells fall back to sorting texel keys.
-_GRID_MAX_CELLS = 1 << 22
 
 
 def texture_luma(texture):
@@ -231,7 +229,7 @@ def _deformed_ids(points, a00, a01, a10, a11, cx, cy, w, h):
         return ids, weights, np.zeros(0, np.int64)
     width = max_x - min_x + 2
     height = max_y - min_y + 2
-    if width <= w and height <= h and width * height <= _GRID_MAX_CELLS:
+    if width <= w and height <= h and width * height <= 16 * count + 4096:
         # No two cells of the box alias under REPEAT: the unwrapped cell is the texel's identity.
         grid = np.full(width * height, -1, np.int64)
         texel = np.empty(4 * count, np.int64)

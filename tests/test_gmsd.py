@@ -96,3 +96,13 @@ def test_options_and_validation():
         gmsd(ref, dist, data_range=0)
     with pytest.raises(ValueError, match="channels"):
         gmsd(rng.random((4, 4, 2)), rng.random((4, 4, 2)), channel_axis=-1)
+
+
+def test_fused_padded_kernel_matches_numpy():
+    from perceptual_uv.core.gmsd import _gmsd_padded_pooled_kernel
+
+    rng = np.random.default_rng(6)
+    ref, dist = rng.random((2, 16, 16))
+    padded = np.pad(pool2(dist), 1)
+    value = _gmsd_padded_pooled_kernel(padded, gradient_magnitude(pool2(ref)), GMSD_C, np.empty(64))
+    assert value == pytest.approx(gmsd(ref, dist), abs=1e-15)
