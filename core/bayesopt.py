@@ -334,14 +334,18 @@ def _select_batch_numba(q, X, L, n, noise, C, V, squares, mean, signal, inv_leng
 
     After a pick ``j``, its column ``V[:n, j]`` is the new row of ``L`` (it is ``L^-1 k(X, c_j)``), the
     diagonal is ``sqrt(1 + noise - squares[j])``, and one new row of ``V`` lowers every candidate's variance;
-    the mean does not change (the fantasy target is the posterior mean). Returns the chosen indices.
+    the mean does not change (the fantasy target is the posterior mean). Returns the chosen indices and the
+    best score of the first pick (the acquisition's maximum over the candidates).
     """
     c = C.shape[0]
     taken = np.zeros(c, np.bool_)
     chosen = np.empty(q, np.int64)
+    top = -np.inf
     for pick in range(q):
         scores = _scores_numba(mean, squares, signal, kind, best, parameter, cost, best_cost, taken)
         j = int(np.argmax(scores))
+        if pick == 0:
+            top = scores[j]
         chosen[pick] = j
         taken[j] = True
         for i in range(n):
@@ -350,7 +354,7 @@ def _select_batch_numba(q, X, L, n, noise, C, V, squares, mean, signal, inv_leng
         X[n] = C[j]
         _append_rows_numba(V, squares, L, X, n, n + 1, C, 0, c, inv_length, periodic)
         n += 1
-    return chosen
+    return chosen, top
 
 
 def _select_batch_numpy(q, X, L, n, noise, C, V, squares, mean, signal, inv_length, periodic, kind, best,
@@ -415,7 +419,7 @@ class _GaussianProcess:
         spread = float(np.std(y))
         self.scale = spread if spread > 0 else 1.0
         standardized = (self.y[:n] - self.offset) / self.scale
-        self.w = _forward_substitute_numba(self.L[:n, :n], standardized)
+        self.w = _forward_substitute_numba(self.L, standardized)  # reads L[:n, :n] only
         self.signal = max(float(self.w @ self.w) / n, 1e-12)
 
     def refactor(self):
@@ -424,7 +428,7 @@ class _GaussianProcess:
         C[np.diag_indices(n)] += math.exp(self.log_noise)
         self.L[:n, :n] = np.linalg.cholesky(C)
 
-    def fit(self, *, max_iterations=30):
+    def fit(self, *, max_iterations=20):
         """Maximize the profiled log marginal likelihood over log length scales and log noise."""
         n = self.n
         X = np.ascontiguousarray(self.X[:n])
@@ -530,6 +534,8 @@ class _Search:
         self.V = np.empty((gp.X.shape[0], total))
         self.squares = np.zeros(total)
         self.pool_rows = 0
+        self.top_score = np.inf
+        self._step_scales = np.repeat(self._SCALES, -(-local_size // len(self._SCALES)))[:local_size]
 
     def hyperparameters_changed(self):
         self.pool_rows = 0
@@ -543,7 +549,7 @@ class _Search:
         """
         count, d = self.local_size, self.gp.dims
         length = np.minimum(np.exp(self.gp.log_length), 1.0)
-        scale = np.repeat(self._SCALES, -(-count // len(self._SCALES)))[:count]
+        scale = self._step_scales
         # Half of the steps start from the best point, the rest from any incumbent.
         centres = incumbents[np.where(np.arange(count) % 2 == 0, 0,
                                       self.rng.integers(0, len(incumbents), size=count))]
@@ -569,7 +575,7 @@ class _Search:
             _append_rows_numba(self.V, self.squares, gp.L, gp.X, 0, n, self.C, P, len(self.C), inv_length,
                                self.periodic)
         mean = _leading_dot_numba(self.V, gp.w, len(self.C))
-        chosen = _select_batch_numba(batch_size, gp.X, gp.L, n, math.exp(gp.log_noise), self.C, self.V,
+        chosen, self.top_score = _select_batch_numba(batch_size, gp.X, gp.L, n, math.exp(gp.log_noise), self.C, self.V,
                                      self.squares, mean, gp.signal, inv_length, self.periodic, acquisition.kind,
                                      acquisition.best, acquisition.parameter, self.cost, acquisition.best_cost)
         gp.n = self.pool_rows = n + batch_size
@@ -583,7 +589,7 @@ def _initial_design(rng, dims, count):
 
 
 def _run(evaluate, plan, bounds, *, evaluations, initial_points, batch_size, x0, periodic, seed, candidates,
-         local_candidates, fits, unit_cost=None, stop=None):
+         local_candidates, fits, unit_cost=None, stop=None, converged=None):
     """Shared loop: ``evaluate(unit_points) -> targets``; ``plan(gp) -> (_Acquisition, incumbents)``.
 
     ``x0`` is evaluated first on its own, so ``stop()`` can end the run before the rest of the design.
@@ -610,14 +616,18 @@ def _run(evaluate, plan, bounds, *, evaluations, initial_points, batch_size, x0,
             search.hyperparameters_changed()
             next_fit, fits_left = 2 * gp.n, fits_left - 1
         acquisition, incumbents = plan(gp)
+        n_before = gp.n
         batch = search.select(acquisition, incumbents, min(batch_size, evaluations - gp.n))
+        if converged is not None and converged(acquisition, search.top_score):
+            gp.n = search.pool_rows = n_before  # drop the pending points
+            break
         targets.extend(evaluate(batch))
         gp.set_targets(np.asarray(targets))
     return low + width * gp.X[:gp.n], np.asarray(targets)
 
 
 def minimize(objective, bounds, *, evaluations=100, initial_points=10, batch_size=4, x0=None, periodic=None,
-             acquisition="ei", xi=0.01, kappa=1.96, seed=0, backend="fast", candidates=512, local_candidates=96,
+             acquisition="ei", xi=0.01, kappa=1.96, seed=0, backend="fast", candidates=256, local_candidates=64,
              fits=3):
     """Minimize an expensive function over a box by Gaussian-process Bayesian optimization.
 
@@ -687,8 +697,8 @@ def minimize(objective, bounds, *, evaluations=100, initial_points=10, batch_siz
 
 
 def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100, initial_points=10, batch_size=4,
-                         x0=None, periodic=None, cost_lower_bound=None, seed=0, candidates=512,
-                         local_candidates=96, fits=3):
+                         x0=None, periodic=None, cost_lower_bound=None, tolerance=None, seed=0, candidates=256,
+                         local_candidates=64, fits=3):
     """Minimize a cheap known cost subject to an expensive constraint ``constraint(x) <= threshold``.
 
     The GP models the constraint only; the acquisition is ``max(best_cost - cost(x), 0) * P(g(x) <= t)``, the
@@ -711,6 +721,9 @@ def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100
         As in :func:`minimize`.
     cost_lower_bound : float, optional
         Known infimum of the cost over the box; the run stops early once a feasible point reaches it.
+    tolerance : float, optional
+        Stop once the largest expected feasible improvement over the candidates falls below
+        ``tolerance * best_cost`` (relative convergence); by default the whole budget is used.
 
     Returns
     -------
@@ -750,6 +763,11 @@ def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100
 
     reached = []
 
+    def converged(acquisition, top_score):
+        if tolerance is None or acquisition.kind != _FEASIBLE_IMPROVEMENT:
+            return False
+        return top_score < math.log(tolerance * acquisition.best_cost)
+
     def evaluate_and_check(unit_points):
         values = evaluate(unit_points)
         if cost_lower_bound is not None:
@@ -759,7 +777,8 @@ def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100
 
     X, y = _run(evaluate_and_check, plan, bounds, evaluations=evaluations, initial_points=initial_points,
                 batch_size=batch_size, x0=x0, periodic=periodic, seed=seed, candidates=candidates,
-                local_candidates=local_candidates, fits=fits, unit_cost=unit_cost, stop=lambda: any(reached))
+                local_candidates=local_candidates, fits=fits, unit_cost=unit_cost, stop=lambda: any(reached),
+                converged=converged)
     costs = np.asarray(costs)
     feasible = y <= threshold
     if feasible.any():

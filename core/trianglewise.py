@@ -75,6 +75,7 @@ LAMBDA_MIN = 0.1
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
+TOLERANCE = None
 _QUARTER = 0.5 * math.pi
 _FORMULATIONS = ("constrained", "barrier")
 _BACKENDS = ("fast", "skopt")
@@ -240,7 +241,7 @@ def _polish(loss, best, epsilon, lambda_min, evaluations):
 
 
 def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMBDA_MIN, formulation=None,
-                      backend="fast", seed=0, weights=True, polish_evaluations=None):
+                      backend="fast", seed=0, weights=True, polish_evaluations=None, tolerance=TOLERANCE):
     """Optimal deformation of one triangle (Eq. 7 / 12-14) and its sensitivity weights (Eq. 17).
 
     Parameters
@@ -292,7 +293,7 @@ def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMB
         found = bayesopt.minimize_constrained(
             lambda P: P[:, 1] * P[:, 2], lambda P: np.log(loss(P) + offset), bounds,
             threshold=math.log(epsilon + offset), evaluations=evaluations - polish, x0=np.vstack([identity, corner]),
-            periodic=periodic, cost_lower_bound=lambda_min * lambda_min, seed=seed)
+            periodic=periodic, cost_lower_bound=lambda_min * lambda_min, tolerance=tolerance, seed=seed)
         if found.feasible and found.fun > lambda_min * lambda_min * (1 + 1e-9):
             _polish(loss, found.x, epsilon, lambda_min, polish)
     else:
