@@ -165,8 +165,9 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
     Returns
     -------
     bpy.types.Image
-        A new 8-bit sRGB image whose stored values are the bilinear samples of the source's stored values;
-        alpha is baked too when a source image uses it.
+        A new image whose stored values are the bilinear samples of the source's stored values, clipped to
+        [0, 1]: 8-bit sRGB for 8-bit sources, float (linear) when a source is a float image (16-bit PNG,
+        EXR), so the colours mean the same; alpha is baked too when a source image uses it.
     """
     objects = list(objects)
     for obj in objects:
@@ -182,7 +183,10 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
         pixels[..., 3] = _bake_channel(objects, channel="ALPHA", **common)[..., 0]
     else:
         pixels[..., 3] = 1.0
-    image = bpy.data.images.new(image_name, resolution, resolution, alpha=use_alpha)
+    # Float sources (16-bit PNG, EXR) hold linear values in ``pixels``; a byte image would read those numbers as
+    # sRGB and darken them, so the result is a float image too (saved as a 16-bit PNG).
+    use_float = any(image is not None and image.is_float for obj in objects for image, _ in _slot_sources(obj))
+    image = bpy.data.images.new(image_name, resolution, resolution, alpha=use_alpha, float_buffer=use_float)
     image.pixels.foreach_set(np.clip(pixels, 0.0, 1.0).ravel())
     image.update()
     return image

@@ -98,6 +98,10 @@ def optimize_file(args):
     except BaseException:
         pipeline.close()
         raise
+    for note in result.report.get("notes", []):
+        _log(f"note: {note}")
+    for warning in result.report.get("warnings", []):
+        _log(f"warning: {warning}")
     report = dict(result.report, input=str(args.input), output=str(out))
     image_file = report.get("image_file")
     try:

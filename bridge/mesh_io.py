@@ -108,14 +108,15 @@ def read_mesh(obj, *, uv_name=None):
     Raises
     ------
     ValueError
-        If ``obj`` is not a mesh, has no faces or lacks the UV map.
+        If ``obj`` is not a mesh, has no faces, lacks the UV map, or has NaN or infinite positions or UVs.
     """
     mesh = _mesh_of(obj)
     uv_name = _resolve_uv_name(obj, uv_name)
     mesh.calc_loop_triangles()
     n_vertices, n_loops, n_triangles = len(mesh.vertices), len(mesh.loops), len(mesh.loop_triangles)
     if n_triangles == 0:
-        raise ValueError(f"'{obj.name}' has no faces")
+        raise ValueError(f"'{obj.name}' has no faces (only loose vertices or edges, or an empty mesh): there is "
+                         "nothing to optimize")
     local = _get(mesh.vertices, "co", n_vertices, np.float32, 3).astype(np.float64)
     matrix = np.array(obj.matrix_world, dtype=np.float64)
     V = local @ matrix[:3, :3].T + matrix[:3, 3]
@@ -125,6 +126,14 @@ def read_mesh(obj, *, uv_name=None):
     tri_polygons = _get(triangles, "polygon_index", n_triangles, np.int32).astype(np.int64)
     material_index = _get(triangles, "material_index", n_triangles, np.int32).astype(np.int64)
     loop_uv = _get(mesh.uv_layers[uv_name].uv, "vector", n_loops, np.float32, 2).astype(np.float64)
+    bad_vertices = ~np.isfinite(V).all(axis=1)
+    if bad_vertices.any():
+        raise ValueError(f"'{obj.name}' has {int(bad_vertices.sum())} vertices with NaN or infinite coordinates "
+                         "(after its object transform); fix or delete them first")
+    bad_loops = ~np.isfinite(loop_uv).all(axis=1)
+    if bad_loops.any():
+        raise ValueError(f"UV map '{uv_name}' of '{obj.name}' has NaN or infinite coordinates on "
+                         f"{int(bad_loops.sum())} face corners; re-unwrap those faces first")
     return MeshArrays(V=V, F=F, uv=loop_uv[tri_loops], tri_loops=tri_loops, tri_polygons=tri_polygons,
                       material_index=material_index, object_index=np.zeros(n_triangles, dtype=np.int64),
                       object_names=(obj.name,), uv_name=uv_name)

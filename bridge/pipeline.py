@@ -47,6 +47,10 @@ def target_problem(obj):
     """Why ``obj`` cannot be optimized (a sentence for the user), or None when it can."""
     if obj is None or obj.type != "MESH":
         return "Select a mesh object"
+    if obj.data.library is not None or obj.library is not None:
+        block = obj.data if obj.data.library is not None else obj
+        return (f"'{block.name}' is linked from the library '{block.library.filepath}' and cannot be changed: make it "
+                "local first (Object > Relations > Make Local)")
     if not obj.data.uv_layers:
         return f"Mesh '{obj.data.name}' has no UV map: unwrap it first"
     if not any(base_color_image_node(slot.material) for slot in obj.material_slots):
@@ -55,16 +59,47 @@ def target_problem(obj):
 
 
 def _source_image(objects):
-    images = {node.image for obj in objects for slot in obj.material_slots
-              if (node := base_color_image_node(slot.material)) is not None}
+    """The one base-colour image of ``objects``, or a ValueError that says which images were found where."""
+    per_object = {}
+    for obj in objects:
+        for index, slot in enumerate(obj.material_slots):
+            if (node := base_color_image_node(slot.material)) is not None:
+                per_object.setdefault(obj.name, {}).setdefault(node.image, []).append(index)
+    images = {image for slots in per_object.values() for image in slots}
+    for name, slots in per_object.items():
+        if len(slots) > 1:
+            listing = "; ".join(f"'{image.name}' on slot{'s' if len(indices) > 1 else ''} "
+                                f"{', '.join(str(i + 1) for i in indices)}"
+                                for image, indices in sorted(slots.items(), key=lambda item: item[0].name))
+            raise ValueError(f"object '{name}' uses {len(slots)} different images for its base colour ({listing}); "
+                             "one run optimizes one texture: separate the object by material (Edit Mode, Mesh > "
+                             "Separate > By Material) and optimize the part with the texture you want")
     if len(images) != 1:
         names = ", ".join(sorted(image.name for image in images))
         raise ValueError(f"the objects' base colours use {len(images)} images ({names}); optimize objects that "
                          "share one texture together, or each material's objects separately")
     (image,) = images
+    if image.source == "TILED":
+        raise ValueError(f"image '{image.name}' is a UDIM tiled image; only single images are supported (bake the "
+                         "tiles into one image first)")
+    if image.source in {"SEQUENCE", "MOVIE"}:
+        raise ValueError(f"image '{image.name}' is an image sequence or movie; use a single still image")
     if image.size[0] == 0 or image.size[1] == 0:
-        raise ValueError(f"image '{image.name}' has no pixels: is its file '{image.filepath}' missing?")
+        where = bpy.path.abspath(image.filepath) if image.filepath else "(no file path)"
+        raise ValueError(f"image '{image.name}' has no pixels: its file {where} is missing or unreadable; "
+                         "fix the path (Image > Replace) or pack the image")
     return image
+
+
+def _notes_for_objects(objects):
+    """What the user should know about the objects themselves (modifiers: the base mesh is optimized)."""
+    notes = []
+    for obj in objects:
+        if obj.modifiers:
+            names = ", ".join(f"{modifier.name} ({modifier.type.lower()})" for modifier in obj.modifiers)
+            notes.append(f"object '{obj.name}' has modifiers ({names}): its base mesh is optimized, the modifiers "
+                         "still apply on top of the new UV map")
+    return notes
 
 
 def _unique_uv_name(objects, wanted):
@@ -102,13 +137,24 @@ class _Created:
             bpy.data.images.remove(block)
 
 
-def _read_objects(objects, source_uv):
+def _read_objects(objects, source_uv, settings):
+    """Read, then validate: the image block, the validated input (mesh, texture for the loss, what to skip), notes."""
     from ..core.mesh import concatenate_meshes
-    from .mesh_io import read_image, read_mesh
+    from ..core.validate import check_memory_budget, validate_inputs
+    from .mesh_io import image_triangle_mask, read_image, read_mesh
 
-    mesh = concatenate_meshes([read_mesh(obj, uv_name=source_uv) for obj in objects])
+    per_object = [read_mesh(obj, uv_name=source_uv) for obj in objects]
+    mesh = concatenate_meshes(per_object)
     image = _source_image(objects)
-    return mesh, image, read_image(image)
+    width, height = image.size
+    what = ", ".join(f"'{obj.name}'" for obj in objects)
+    # Refused before the pixels are read when the run would not fit.
+    check_memory_budget(mesh.n_vertices, mesh.n_faces, (height, width, image.channels), workers=settings.workers,
+                        screen_pixels=settings.screen_pixels, what=what)
+    uses_image = np.concatenate([image_triangle_mask(obj, arrays, image) for obj, arrays in zip(objects, per_object)])
+    validated = validate_inputs(mesh, read_image(image), shows_texture=uses_image, workers=settings.workers,
+                                screen_pixels=settings.screen_pixels, uv_name=source_uv, image_name=image.name)
+    return image, validated, _notes_for_objects(objects) + list(validated.notes)
 
 
 def loss_ramp(losses, epsilon):
@@ -179,21 +225,32 @@ def _material_copies(objects, image, uv_name, created):
 
 
 def _save_or_pack(image, output_dir):
-    """Save next to the .blend (or into ``output_dir``); pack into the file when there is nowhere to save."""
+    """Save next to the .blend (or into ``output_dir``); pack into the file when there is nowhere to save.
+
+    Returns
+    -------
+    path : str or None
+        The saved file, None when the image was packed.
+    warning : str or None
+        Why the image could not be saved (it is packed into the file instead, the result is kept).
+    """
     folder = output_dir or (os.path.dirname(bpy.data.filepath) if bpy.data.filepath else None)
     if folder is None:
         image.pack()
-        return None
+        return None, None
     path = os.path.join(bpy.path.abspath(folder), f"{bpy.path.clean_name(image.name)}.png")
     image.filepath_raw = path
     image.file_format = "PNG"
     try:
         image.save()
     except RuntimeError as error:
+        image.filepath_raw = ""
         image.pack()
-        raise OSError(f"could not save '{path}' ({error}); the image is packed into the file instead") from None
+        reason = str(error).strip().splitlines()[-1] if str(error).strip() else "unknown error"
+        return None, (f"could not save the image to '{path}' ({reason}); it is packed into the .blend file "
+                      "instead: save it from the Image Editor (Image > Save As) to a writable folder")
     image.filepath = bpy.path.relpath(path) if bpy.data.filepath else path
-    return path
+    return path, None
 
 
 def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
@@ -248,7 +305,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     created = _Created()
     try:
         yield Progress("read", 0, 1, "Reading mesh and texture")
-        mesh, image, texture = _read_objects(objects, source_uv)
+        image, validated, notes = _read_objects(objects, source_uv, settings)
+        mesh, texture, faces = validated.mesh, validated.texture, validated.faces
         V, F, uv_in = mesh.V, mesh.F, mesh.uv
         luma = texture_luma(texture)
         height, width = texture.shape[:2]
@@ -258,12 +316,14 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         clock = time.perf_counter()
         stage = iter_optimize_triangles(V, F, uv_in, luma, epsilon=settings.epsilon,
                                         evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
-                                        workers=settings.workers, seed=settings.seed)
+                                        workers=settings.workers, seed=settings.seed, faces=faces)
         triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock)
         times["triangle"] = time.perf_counter() - clock
+        # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
+        params, w_R, w_S = validated.targets(triangles.params, triangles.w_R, triangles.w_S)
 
         clock = time.perf_counter()
-        stage = iter_solve_meshwise(F, uv_in, triangles.params, triangles.w_R, triangles.w_S)
+        stage = iter_solve_meshwise(F, uv_in, params, w_R, w_S)
         meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit", clock)
         times["mesh"] = time.perf_counter() - clock
 
@@ -286,12 +346,13 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         times["bake"] = time.perf_counter() - clock
 
         yield Progress("loss", 0, 1, "Measuring the loss per triangle")
-        losses = losses_at(V, F, uv_in, luma, meshwise.uv, screen_pixels=settings.screen_pixels)
+        losses = np.zeros(m)  # skipped triangles show 0 in the overlay; the report counts optimized ones only
+        losses[faces] = losses_at(V, F, uv_in, luma, meshwise.uv, screen_pixels=settings.screen_pixels, faces=faces)
         for obj, rows in zip(objects, per_object):
             _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
 
         materials = _material_copies(objects, new_image, uv_name, created) if settings.use_material_copy else []
-        saved = _save_or_pack(new_image, output_dir)
+        saved, save_warning = _save_or_pack(new_image, output_dir)
         times["total"] = time.perf_counter() - started
 
         report = {
@@ -306,7 +367,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                                       reference_resolution=(width, height)),
             "times_s": {key: round(value, 3) for key, value in times.items()},
             "flipped_triangles": int(meshwise.flipped),
-            "triangles_within_bound": float(np.mean(losses <= settings.epsilon)),
+            "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
+            "optimized_triangles": int(len(faces)),
+            "skipped_triangles": int(m - len(faces)),
             "uv_map": uv_name,
             "source_uv_map": source_uv,
             "image": new_image.name,
@@ -314,6 +377,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "materials": [material.name for material in materials],
             "seed": settings.seed,
             "evaluations_per_triangle": settings.iterations,
+            "notes": notes,
+            "warnings": [save_warning] if save_warning else [],
         }
         yield Progress("done", 1, 1, "Done")
         return PipelineResult(uv_map=uv_name, image=new_image, materials=materials, report=report)
@@ -334,11 +399,17 @@ def _relay(stage, name, label, started):
         yield Progress(name, done, total, f"{label}: {done}/{total}{left}")
 
 
+# Largest island margin as a fraction of the image: on tiny images (a few pixels) the margin in pixels cannot be
+# met, and alternating between "margin eats the image" and "no margin" made the resolution oscillate wildly.
+MAX_MARGIN_FRACTION = 0.1
+MAX_RESOLUTION = 16384
+
+
 def _pack(objects, mesh, uv_name, input_size, settings, pack_uv_layer):
     """Pack, then pick the resolution; packs again when the margin in pixels came out more than 1 px off."""
     # First guess: the input's packing efficiency, i.e. r ~ sqrt(c_r) r_hat (Eq. 21 with equal UV areas).
     guess = settings.resolution or max(8.0, np.sqrt(settings.target_cost) * max(input_size))
-    margin_fraction = settings.margin / guess
+    margin_fraction = min(settings.margin / guess, MAX_MARGIN_FRACTION)
     for attempt in range(3):
         pack_uv_layer(objects, uv_name, margin_fraction=margin_fraction)
         if settings.resolution is not None:
@@ -346,9 +417,13 @@ def _pack(objects, mesh, uv_name, input_size, settings, pack_uv_layer):
         uv_out = _read_packed(objects, mesh, uv_name)
         resolution = texel_cost.resolution_for_cost(uv_out, settings.target_cost, reference_uv=mesh.uv,
                                                     reference_resolution=input_size, minimum=8)
-        if abs(margin_fraction * resolution - settings.margin) <= 1:
-            return resolution
-        margin_fraction = settings.margin / resolution
+        wanted = min(settings.margin / resolution, MAX_MARGIN_FRACTION)
+        if abs(wanted - margin_fraction) * resolution <= 1:
+            break
+        margin_fraction = wanted
+    if resolution > MAX_RESOLUTION:
+        raise ValueError(f"the target relative cost {settings.target_cost} needs a {resolution} px image, more than "
+                         f"{MAX_RESOLUTION}; lower the target cost or set an explicit resolution")
     return resolution
 
 

@@ -62,6 +62,10 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
         self.report({"INFO"}, f"{report['uv_map']}: {report['resolution']} px image '{report['image']}', relative "
                     f"cost {report['relative_cost']:.2f}, {report['triangles_within_bound']:.0%} of triangles "
                     f"within the loss bound, {report['times_s']['total']:.0f} s")
+        for note in report.get("notes", []):
+            self.report({"INFO"}, note)
+        for warning in report.get("warnings", []):
+            self.report({"WARNING"}, warning)
 
     def execute(self, context):
         from ..bridge.pipeline import run_to_end

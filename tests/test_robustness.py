@@ -1,0 +1,451 @@
+"""Messy inputs and faults (issue 7): each is handled or refused with a clear message, originals untouched."""
+import os
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from perceptual_uv.bridge import pipeline  # noqa: E402
+from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end, target_problem  # noqa: E402
+from perceptual_uv.core.settings import OptimizeSettings  # noqa: E402
+
+from conftest import reset_blender_scene  # noqa: E402  (tests/ is on sys.path under pytest)
+from test_optimize_end_to_end import FAST, ID_KINDS  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+SETTINGS = OptimizeSettings(**FAST)
+
+
+def grid_polygons(k, kind):
+    """Faces of a k x k grid of unit cells: quads, triangles, or n-gons (pairs of cells merged into hexagons)."""
+    index = lambda i, j: i * (k + 1) + j  # noqa: E731
+    faces = []
+    for i in range(k):
+        j = 0
+        while j < k:
+            a, b, c, d = index(i, j), index(i, j + 1), index(i + 1, j + 1), index(i + 1, j)
+            if kind == "ngons" and j + 1 < k:
+                faces.append((a, b, index(i, j + 2), index(i + 1, j + 2), c, d))
+                j += 2
+                continue
+            faces += [(a, b, c), (a, c, d)] if kind == "tris" else [(a, b, c, d)]
+            j += 1
+    return [face[::-1] for face in faces]  # counter-clockwise seen from +z, as are the UVs (u, v) = (x, y)
+
+
+def textured_grid(name="grid", *, k=3, kind="quads", image_size=(64, 64), float_image=False, image=None,
+                  uv_scale=0.8, uv_offset=0.1, location=(0.0, 0.0, 0.0)):
+    """A bumpy k x k grid with UV map "UVMap" (its xy, scaled) and a random image feeding Base Color."""
+    rng = np.random.default_rng(len(name))
+    xs = np.arange(k + 1, dtype=float) / k
+    X, Y = np.meshgrid(xs, xs, indexing="ij")
+    Z = 0.1 * np.sin(3 * X) * np.cos(2 * Y)
+    verts = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(verts.tolist(), [], grid_polygons(k, kind))
+    layer = mesh.uv_layers.new(name="UVMap")
+    loop_vertex = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.loops.foreach_get("vertex_index", loop_vertex)
+    layer.uv.foreach_set("vector", (verts[loop_vertex, :2] * uv_scale + uv_offset).ravel())
+    if image is None:
+        width, height = image_size
+        image = bpy.data.images.new(f"{name}_texture", width, height, alpha=True, float_buffer=float_image)
+        rgba = np.ones((height, width, 4), dtype=np.float32)
+        rgba[..., :3] = rng.random((height, width, 3))
+        image.pixels.foreach_set(rgba.ravel())
+    material = bpy.data.materials.new(f"{name}_material")
+    node = material.node_tree.nodes.new("ShaderNodeTexImage")
+    node.image = image
+    material.node_tree.links.new(node.outputs["Color"],
+                                 material.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    obj.location = location
+    bpy.context.scene.collection.objects.link(obj)
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+    return obj
+
+
+def image_of(obj):
+    return obj.material_slots[0].material.node_tree.nodes["Image Texture"].image
+
+
+def state(objects):
+    """Everything a run must not change: per object its UV maps, positions, attributes, slots; image pixels."""
+    out = {"ids": {kind: len(getattr(bpy.data, kind)) for kind in ID_KINDS}}
+    for obj in objects:
+        mesh = obj.data
+        co = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+        mesh.vertices.foreach_get("co", co)
+        layers = {}
+        for layer in mesh.uv_layers:
+            uv = np.empty(2 * len(mesh.loops), dtype=np.float32)
+            layer.uv.foreach_get("vector", uv)
+            layers[layer.name] = uv.tobytes()
+        out[obj.name] = {"co": co.tobytes(), "uv": layers,
+                         "attributes": sorted(a.name for a in mesh.attributes),
+                         "slots": [(slot.link, slot.material.name if slot.material else None)
+                                   for slot in obj.material_slots]}
+    for image in bpy.data.images:
+        pixels = np.empty(len(image.pixels), dtype=np.float32)
+        if len(pixels):
+            image.pixels.foreach_get(pixels)
+        out[f"image {image.name}"] = pixels.tobytes()
+    return out
+
+
+def refused(objects, *, match, **kwargs):
+    """Run the pipeline, expect a ValueError matching ``match``, and check nothing was changed."""
+    before = state(objects)
+    with pytest.raises(ValueError, match=match) as error:
+        run_to_end(optimize_objects(objects, SETTINGS, **kwargs))
+    assert state(objects) == before
+    assert "\n" not in str(error.value)
+    return str(error.value)
+
+
+def optimized(objects, **kwargs):
+    """Run the pipeline to the end; check the originals are bit-identical and the result is flip-free."""
+    before = state(objects)
+    result = run_to_end(optimize_objects(objects, SETTINGS, **kwargs))
+    after = state(objects)
+    for obj in objects:
+        kept = before[obj.name]
+        now = after[obj.name]
+        assert now["co"] == kept["co"]
+        assert all(now["uv"][name] == uv for name, uv in kept["uv"].items())
+        assert set(now["uv"]) == set(kept["uv"]) | {result.uv_map}
+    assert all(after[key] == value for key, value in before.items() if key.startswith("image "))
+    assert result.report["flipped_triangles"] == 0
+    return result
+
+
+def new_uv_per_triangle(obj, name="PerceptualUV"):
+    mesh = obj.data
+    mesh.calc_loop_triangles()
+    loops = np.empty(3 * len(mesh.loop_triangles), dtype=np.int32)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    uv = np.empty(2 * len(mesh.loops))
+    mesh.uv_layers[name].uv.foreach_get("vector", uv)
+    return uv.reshape(-1, 2)[loops.reshape(-1, 3)]
+
+
+def signed_areas(uv):
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
+@pytest.fixture(autouse=True)
+def clean_scene():
+    reset_blender_scene()
+    yield
+
+
+# ---------------------------------------------------------------------------------------------------- refusals
+def test_no_uv_map_is_refused_by_poll_and_pipeline():
+    obj = textured_grid()
+    obj.data.uv_layers.remove(obj.data.uv_layers["UVMap"])
+    assert "has no UV map: unwrap it first" in target_problem(obj)
+    refused([obj], match="has no UV map")
+
+
+def test_uv_map_collapsed_to_a_point_is_refused():
+    obj = textured_grid()
+    obj.data.uv_layers["UVMap"].uv.foreach_set("vector", np.full(2 * len(obj.data.loops), 0.5, np.float32))
+    message = refused([obj], match="collapsed to a point")
+    assert "UV map 'UVMap'" in message and "Unwrap" in message
+
+
+def test_uv_map_collapsed_to_a_line_is_refused():
+    obj = textured_grid()
+    uv = np.empty(2 * len(obj.data.loops), dtype=np.float32)
+    obj.data.uv_layers["UVMap"].uv.foreach_get("vector", uv)
+    uv[1::2] = 0.25  # every v equal: all UV triangles flat
+    obj.data.uv_layers["UVMap"].uv.foreach_set("vector", uv)
+    refused([obj], match="collapsed to a line")
+
+
+def test_no_image_texture_is_refused():
+    obj = textured_grid()
+    tree = obj.material_slots[0].material.node_tree
+    tree.nodes.remove(tree.nodes["Image Texture"])
+    assert "no image texture" in target_problem(obj)
+    refused([obj], match="no image texture feeding")
+
+
+def test_missing_image_file_is_refused_with_its_path(tmp_path):
+    missing = tmp_path / "gone.png"
+    image = bpy.data.images.new("gone.png", 4, 4)
+    image.source = "FILE"
+    image.filepath = str(missing)
+    image.reload()
+    obj = textured_grid(image=image)
+    message = refused([obj], match="has no pixels")
+    assert str(missing) in message and "missing" in message
+
+
+def test_one_pixel_image_is_refused():
+    obj = textured_grid(image_size=(1, 1))
+    refused([obj], match=r"1 x 1 pixels.*at least 2 x 2")
+
+
+def test_empty_mesh_and_loose_geometry_are_refused():
+    obj = textured_grid()
+    empty = bpy.data.meshes.new("empty")
+    empty.from_pydata([(0, 0, 0), (1, 0, 0), (2, 1, 0)], [(0, 1)], [])  # a loose edge and a loose vertex
+    empty.uv_layers.new(name="UVMap")
+    empty.materials.append(obj.material_slots[0].material)
+    obj.data = empty
+    refused([obj], match="has no faces.*nothing to optimize")
+
+
+def test_nan_coordinates_are_refused():
+    obj = textured_grid()
+    co = np.empty(3 * len(obj.data.vertices), dtype=np.float32)
+    obj.data.vertices.foreach_get("co", co)
+    co[4] = np.nan
+    obj.data.vertices.foreach_set("co", co)
+    refused([obj], match="1 vertices with NaN or infinite coordinates")
+
+
+def test_infinite_uvs_are_refused():
+    obj = textured_grid()
+    uv = np.empty(2 * len(obj.data.loops), dtype=np.float32)
+    obj.data.uv_layers["UVMap"].uv.foreach_get("vector", uv)
+    uv[:2] = np.inf
+    obj.data.uv_layers["UVMap"].uv.foreach_set("vector", uv)
+    refused([obj], match="UV map 'UVMap' of 'grid' has NaN or infinite coordinates on 1 face corners")
+
+
+def test_two_images_on_one_object_are_refused_naming_the_slots():
+    obj = textured_grid()
+    other = textured_grid("other")
+    obj.data.materials.append(other.material_slots[0].material)
+    polygons = np.zeros(len(obj.data.polygons), dtype=np.int32)
+    polygons[::2] = 1
+    obj.data.polygons.foreach_set("material_index", polygons)
+    message = refused([obj], match="uses 2 different images")
+    assert "'grid_texture' on slot 1" in message and "'other_texture' on slot 2" in message
+    assert "Separate > By Material" in message
+
+
+def test_linked_library_data_is_refused(tmp_path):
+    textured_grid("linked")
+    library = tmp_path / "library.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(library))
+    reset_blender_scene()
+    with bpy.data.libraries.load(str(library), link=True) as (data_from, data_to):
+        data_to.objects = ["linked"]
+    obj = data_to.objects[0]
+    bpy.context.scene.collection.objects.link(obj)
+    assert "is linked from the library" in target_problem(obj)
+    with pytest.raises(ValueError, match="Make Local"):
+        run_to_end(optimize_objects([obj], SETTINGS))
+    assert [layer.name for layer in obj.data.uv_layers] == ["UVMap"]
+
+
+def test_udim_tiled_image_is_refused():
+    obj = textured_grid()
+    image_of(obj).source = "TILED"
+    refused([obj], match="UDIM tiled image")
+
+
+def test_memory_budget_is_checked_before_the_pixels_are_read(monkeypatch):
+    obj = textured_grid()
+    monkeypatch.setattr("perceptual_uv.core.validate._physical_memory", lambda: 1024 ** 2)
+    read = []
+    monkeypatch.setattr("perceptual_uv.bridge.mesh_io.read_image", lambda image: read.append(image))
+    message = refused([obj], match=r"needs about \d+ KiB .*more than the memory budget of 512 KiB")
+    assert "mesh-wise" in message and "fewer workers" in message
+    assert read == []
+
+
+# ---------------------------------------------------------------------------------------------------- handled
+def test_quads_and_ngons_are_written_back_to_their_loops():
+    quads = textured_grid("quads", kind="quads")
+    result = optimized([quads])
+    assert result.report["faces"] == 18
+    ngons = textured_grid("ngons", kind="ngons")
+    assert max(len(p.vertices) for p in ngons.data.polygons) == 6
+    result = optimized([ngons])
+    uv = new_uv_per_triangle(ngons)
+    assert np.all(signed_areas(uv) > 0) and uv.min() >= 0 and uv.max() <= 1
+    # Every loop of every polygon got a new UV: corners shared inside an n-gon agree.
+    mesh = ngons.data
+    per_loop = np.empty(2 * len(mesh.loops))
+    mesh.uv_layers[result.uv_map].uv.foreach_get("vector", per_loop)
+    original = np.empty(2 * len(mesh.loops))
+    mesh.uv_layers["UVMap"].uv.foreach_get("vector", original)
+    assert not np.allclose(per_loop, original)
+
+
+def test_packed_non_square_image():
+    obj = textured_grid(image_size=(96, 48))
+    image_of(obj).pack()
+    result = optimized([obj])
+    assert result.report["input_resolution"] == [96, 48]
+    assert result.image.size[0] == result.image.size[1] == result.report["resolution"]
+    assert image_of(obj).packed_file is not None
+
+
+def test_float_image_gives_a_float_result_with_the_same_values():
+    obj = textured_grid(float_image=True)
+    image = image_of(obj)
+    assert image.is_float
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**dict(FAST, resolution=64))))
+    assert result.image.is_float  # an 8-bit sRGB image would read the linear values as sRGB (darker)
+    source = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(source)
+    baked = np.empty(len(result.image.pixels), dtype=np.float32)
+    result.image.pixels.foreach_get(baked)
+    # Same texture on a smaller map: the mean colour stays (the bake copies stored values).
+    assert abs(baked.reshape(-1, 4)[:, :3].mean() - source.reshape(-1, 4)[:, :3].mean()) < 0.05
+
+
+def test_hdr_values_are_clipped_for_the_loss_and_said_so():
+    obj = textured_grid(float_image=True)
+    image = image_of(obj)
+    pixels = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    image.pixels.foreach_set(pixels * 3.0)
+    result = optimized([obj])
+    assert any("outside [0, 1]" in note for note in result.report["notes"])
+
+
+def test_zero_area_triangles_are_skipped_but_get_new_uvs():
+    obj = textured_grid("degenerate", kind="tris")
+    mesh = obj.data
+    # Triangle 0 collapses in 3D (its corner moved onto the opposite edge's midpoint) ...
+    co = np.empty((len(mesh.vertices), 3), dtype=np.float32)
+    mesh.vertices.foreach_get("co", co.ravel())
+    a, b, c = mesh.polygons[0].vertices
+    co[b] = 0.5 * (co[a] + co[c])
+    mesh.vertices.foreach_set("co", co.ravel())
+    # ... and triangle 10 collapses in UV (its three corners on one line, all in one face: nothing shared).
+    uv = np.empty((len(mesh.loops), 2), dtype=np.float32)
+    mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv.ravel())
+    loops = list(mesh.polygons[10].loop_indices)
+    uv[loops[2]] = 0.5 * (uv[loops[0]] + uv[loops[1]])
+    mesh.uv_layers["UVMap"].uv.foreach_set("vector", uv.ravel())
+    result = optimized([obj])
+    report = result.report
+    assert report["skipped_triangles"] == 2 and report["optimized_triangles"] == report["faces"] - 2
+    assert any("zero area in 3D" in note for note in report["notes"])
+    assert any("zero area in UV map 'UVMap'" in note for note in report["notes"])
+    new = new_uv_per_triangle(obj)
+    assert np.all(np.isfinite(new)) and new.min() >= 0 and new.max() <= 1
+    keep = np.ones(len(new), dtype=bool)
+    keep[10] = False
+    assert np.all(signed_areas(new[keep]) > 0)
+
+
+def test_mirrored_overlapping_and_repeating_uvs():
+    obj = textured_grid("mirror", k=4, kind="tris", uv_scale=1.2, uv_offset=-0.1)  # leaves [0, 1]: repeat
+    mesh = obj.data
+    uv = np.empty((len(mesh.loops), 2), dtype=np.float32)
+    mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv.ravel())
+    loop_vertex = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.loops.foreach_get("vertex_index", loop_vertex)
+    co = np.empty((len(mesh.vertices), 3), dtype=np.float32)
+    mesh.vertices.foreach_get("co", co.ravel())
+    right = co[loop_vertex, 0] > 0.5 + 1e-6
+    uv[right, 0] = 1.0 - uv[right, 0]  # the right half mirrored onto the left half's texels
+    mesh.uv_layers["UVMap"].uv.foreach_set("vector", uv.ravel())
+    before = new_uv_per_triangle(obj, "UVMap")
+    assert (signed_areas(before) < 0).any() and (signed_areas(before) > 0).any()
+    optimized([obj])
+    after = new_uv_per_triangle(obj)
+    # Each triangle keeps its orientation (mirrored ones stay mirrored); the result lies in [0, 1].
+    np.testing.assert_array_equal(np.sign(signed_areas(after)), np.sign(signed_areas(before)))
+    assert after.min() >= 0 and after.max() <= 1
+
+
+def test_objects_sharing_an_atlas_are_optimized_together():
+    first = textured_grid("first")
+    second = textured_grid("second", image=image_of(first), uv_offset=0.05, uv_scale=0.3, location=(2, 0, 0))
+    result = optimized([first, second])
+    assert result.report["objects"] == ["first", "second"]
+    assert result.report["faces"] == 36
+    for obj in (first, second):
+        assert result.uv_map in obj.data.uv_layers
+    assert len(result.materials) == 2 and all(m.node_tree.nodes["Image Texture"].image == result.image
+                                              for m in result.materials)
+
+
+def test_modifiers_are_left_on_and_the_base_mesh_is_optimized():
+    obj = textured_grid()
+    obj.modifiers.new("Subdivision", "SUBSURF")
+    result = optimized([obj])
+    assert result.report["faces"] == 18  # the 9 base quads, not the subdivided ones
+    assert any("base mesh is optimized" in note and "Subdivision" in note for note in result.report["notes"])
+    assert [modifier.name for modifier in obj.modifiers] == ["Subdivision"]
+
+
+def test_material_slot_without_the_image_is_not_optimized():
+    obj = textured_grid()
+    plain = bpy.data.materials.new("plain")
+    obj.data.materials.append(plain)
+    obj.data.polygons[0].material_index = 1
+    result = optimized([obj])
+    assert result.report["skipped_triangles"] == 2
+    assert any("use a material without image 'grid_texture'" in note for note in result.report["notes"])
+
+
+def test_tiny_image_gets_a_sane_resolution():
+    # 16 x 16 with a 4 px margin: the margin cannot be met; the resolution must not run away.
+    result = optimized([textured_grid(image_size=(16, 16))])
+    assert 8 <= result.report["resolution"] <= 32
+
+
+# ---------------------------------------------------------------------------------------------------- faults
+def test_failed_image_save_keeps_the_result_and_warns(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    obj = textured_grid()
+    result = optimized([obj], output_dir=str(blocker / "images"))
+    assert result.image.name in bpy.data.images and result.image.packed_file is not None
+    (warning,) = result.report["warnings"]
+    assert "could not save the image" in warning and "packed into the .blend" in warning
+    assert result.report["image_file"] is None
+    assert result.uv_map in obj.data.uv_layers
+
+
+def test_operator_reports_the_refusal_instead_of_raising():
+    import perceptual_uv
+
+    perceptual_uv.register()
+    try:
+        obj = textured_grid(image_size=(1, 1))
+        before = state([obj])
+        # Headless, Blender turns an operator's ERROR report into a RuntimeError carrying the message.
+        with pytest.raises(RuntimeError, match="1 x 1 pixels") as error:
+            bpy.ops.uv.perceptual_optimize("EXEC_DEFAULT", **FAST)
+        assert "Traceback" not in str(error.value)
+        assert state([obj]) == before
+    finally:
+        perceptual_uv.unregister()
+
+
+@pytest.mark.parametrize("stage", ["read", "triangle", "mesh", "pack", "bake", "loss", "done"])
+def test_error_at_any_stage_leaves_nothing(monkeypatch, stage):
+    """An exception thrown into the run at each stage (as a cancel or a fault would) removes what it made."""
+    obj = textured_grid()
+    before = state([obj])
+    run = optimize_objects([obj], SETTINGS)
+    for progress in run:
+        if progress.stage == stage:
+            break
+    with pytest.raises(KeyboardInterrupt):
+        run.throw(KeyboardInterrupt)
+    assert state([obj]) == before
+
+
+def test_save_error_message_is_one_line_for_a_missing_drive():
+    # A folder that can never be created: the warning is one sentence, not Blender's multi-line error dump.
+    obj = textured_grid()
+    path = os.path.join(os.sep, "proc", "perceptual_uv_cannot_write_here")
+    result = optimized([obj], output_dir=path)
+    (warning,) = result.report["warnings"]
+    assert "\n" not in warning and path in warning
