@@ -9,6 +9,7 @@ import json
 import os
 import pathlib
 import sys
+import tempfile
 
 import bpy
 
@@ -43,6 +44,17 @@ def _textured_objects(object_name):
         listing = "; ".join(f"{image}: {', '.join(o.name for o in objs)}" for image, objs in sorted(groups.items()))
         raise ValueError(f"the meshes use {len(groups)} different textures ({listing}); pick one with --object")
     return next(iter(groups.values()))
+
+
+def _writable_folder(folder):
+    """Create ``folder`` if needed and check that files can be created in it; ValueError otherwise."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as error:
+        raise ValueError(f"cannot write into the output folder {folder}: {error.strerror or error}") from None
+    return folder
 
 
 @contextlib.contextmanager
@@ -80,11 +92,12 @@ def optimize_file(args):
     from .mesh_io import import_model
     from .pipeline import Progress, optimize_objects
 
+    out = pathlib.Path(args.out).resolve()
+    images_dir = _writable_folder(out.parent)  # checked before the (long) run, not after it
+    if args.report:
+        _writable_folder(pathlib.Path(args.report).resolve().parent)
     import_model(args.input)
     objects = _textured_objects(args.object)
-    out = pathlib.Path(args.out).resolve()
-    images_dir = out.parent
-    images_dir.mkdir(parents=True, exist_ok=True)
     pipeline = optimize_objects(objects, args.settings, source_uv=args.uv, output_dir=str(images_dir))
     last_stage = None
     try:
@@ -106,13 +119,22 @@ def optimize_file(args):
     image_file = report.get("image_file")
     try:
         with _publish(out) as temporary:
-            if out.suffix.lower() == ".glb":
-                _export_glb(objects, result, temporary)
-            else:
-                bpy.ops.wm.save_as_mainfile(filepath=str(temporary), copy=True, relative_remap=True)
+            try:
+                if out.suffix.lower() == ".glb":
+                    _export_glb(objects, result, temporary)
+                else:
+                    bpy.ops.wm.save_as_mainfile(filepath=str(temporary), copy=True, relative_remap=True)
+            except RuntimeError as error:  # Blender's save and export report I/O failures this way
+                reason = str(error).strip().splitlines()[-1] if str(error).strip() else "unknown error"
+                raise ValueError(f"could not write {out}: {reason}") from None
         if args.report:
             with _publish(args.report) as temporary:
                 temporary.write_text(json.dumps(report, indent=2) + "\n")
+    except OSError as error:
+        if image_file:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(image_file)
+        raise ValueError(f"could not write the output: {error}") from None
     except BaseException:
         if image_file:
             with contextlib.suppress(FileNotFoundError):

@@ -4,8 +4,10 @@
 ``optimize_objects(objects, settings)`` is driven one slice at a time by the modal operator (one ``next`` per
 timer tick), run to the end by ``execute`` and by the batch CLI, and closed (``.close()``) to cancel: whatever
 it created so far (UV map, image, material copies, face attribute) is removed again, so a cancelled or failed
-run leaves the file exactly as it was. The original UV map, image, materials and mesh are never modified.
+run leaves the file exactly as it was (and deletes the new image's file if it was saved already). The original UV
+map, image, materials and mesh are never modified.
 """
+import contextlib
 import dataclasses
 import os
 import time
@@ -109,6 +111,23 @@ def _unique_uv_name(objects, wanted):
     return name
 
 
+MAX_UV_MAPS = 8  # Blender's limit per mesh
+
+
+def _one_object_per_mesh(objects):
+    """Objects that share mesh data (linked duplicates) are optimized once, through the first of them."""
+    kept, notes, first = [], [], {}
+    for obj in objects:
+        if obj.data in first:
+            notes.append(f"object '{obj.name}' shares mesh '{obj.data.name}' with '{first[obj.data].name}': the mesh "
+                         f"is optimized once and gets one new UV map; only '{first[obj.data].name}' gets the "
+                         "material copy")
+            continue
+        first[obj.data] = obj
+        kept.append(obj)
+    return kept, notes
+
+
 class _Created:
     """Everything a run adds to the file, so that a cancel or an error can take it away again."""
 
@@ -118,6 +137,7 @@ class _Created:
         self.images = []
         self.materials = []
         self.slot_links = []     # (object, slot index, previous material, previous link)
+        self.files = []          # image files written to disk
 
     def remove_all(self):
         for obj, index, material, link in reversed(self.slot_links):
@@ -135,6 +155,9 @@ class _Created:
             bpy.data.materials.remove(block)
         for block in self.images:
             bpy.data.images.remove(block)
+        for path in self.files:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(path)
 
 
 def _read_objects(objects, source_uv, settings):
@@ -227,6 +250,8 @@ def _material_copies(objects, image, uv_name, created):
 def _save_or_pack(image, output_dir):
     """Save next to the .blend (or into ``output_dir``); pack into the file when there is nowhere to save.
 
+    An existing file is never overwritten: the name gets a ``.001``-style suffix instead.
+
     Returns
     -------
     path : str or None
@@ -238,7 +263,10 @@ def _save_or_pack(image, output_dir):
     if folder is None:
         image.pack()
         return None, None
-    path = os.path.join(bpy.path.abspath(folder), f"{bpy.path.clean_name(image.name)}.png")
+    stem = os.path.join(bpy.path.abspath(folder), bpy.path.clean_name(image.name))
+    path, counter = f"{stem}.png", 1
+    while os.path.exists(path):  # never overwrite a file (e.g. an earlier run's image still used elsewhere)
+        path, counter = f"{stem}.{counter:03d}.png", counter + 1
     image.filepath_raw = path
     image.file_format = "PNG"
     try:
@@ -294,11 +322,15 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         problem = target_problem(obj)
         if problem:
             raise ValueError(problem)
+    objects, shared_notes = _one_object_per_mesh(objects)
     if source_uv is None:
         source_uv = objects[0].data.uv_layers.active.name
     for obj in objects:
         if source_uv not in obj.data.uv_layers:
             raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}'")
+        if len(obj.data.uv_layers) >= MAX_UV_MAPS:
+            raise ValueError(f"mesh '{obj.data.name}' already has {len(obj.data.uv_layers)} UV maps, the most "
+                             f"Blender allows; remove one it does not need (Object Data > UV Maps) first")
 
     started = time.perf_counter()
     times = {}
@@ -353,6 +385,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         materials = _material_copies(objects, new_image, uv_name, created) if settings.use_material_copy else []
         saved, save_warning = _save_or_pack(new_image, output_dir)
+        if saved:
+            created.files.append(saved)
         times["total"] = time.perf_counter() - started
 
         report = {
@@ -377,7 +411,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "materials": [material.name for material in materials],
             "seed": settings.seed,
             "evaluations_per_triangle": settings.iterations,
-            "notes": notes,
+            "notes": shared_notes + notes,
             "warnings": [save_warning] if save_warning else [],
         }
         yield Progress("done", 1, 1, "Done")

@@ -399,7 +399,90 @@ def test_tiny_image_gets_a_sane_resolution():
     assert 8 <= result.report["resolution"] <= 32
 
 
+def test_part_of_the_uv_map_collapsed_to_a_point():
+    # As on parts of some glTF assets: a few faces' UVs all at one point, the rest unwrapped.
+    obj = textured_grid("partial", k=4)
+    mesh = obj.data
+    uv = np.empty((len(mesh.loops), 2), dtype=np.float32)
+    mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv.ravel())
+    for polygon in (0, 5):
+        uv[list(mesh.polygons[polygon].loop_indices)] = 0.95
+    mesh.uv_layers["UVMap"].uv.foreach_set("vector", uv.ravel())
+    result = optimized([obj])
+    assert result.report["skipped_triangles"] == 4
+    new = new_uv_per_triangle(obj)
+    assert np.all(np.isfinite(new)) and new.min() >= 0 and new.max() <= 1
+
+
+def test_non_manifold_edge_loose_vertex_and_loose_edge():
+    import bmesh
+
+    obj = textured_grid("messy", k=3)
+    bm = bmesh.new()
+    bm.from_mesh(obj.data)
+    bm.verts.ensure_lookup_table()
+    a, b = bm.verts[5], bm.verts[6]  # an interior edge of the grid, already shared by two faces
+    fin = bm.faces.new((a, b, bm.verts.new((0.5, 0.5, 1.0))))  # a third face on it: non-manifold
+    loose = bm.verts.new((3.0, 3.0, 3.0))
+    bm.edges.new((loose, bm.verts.new((4.0, 3.0, 3.0))))  # a loose edge, and a loose vertex below
+    bm.verts.new((5.0, 5.0, 5.0))
+    uv_layer = bm.loops.layers.uv["UVMap"]
+    for loop, corner in zip(fin.loops, ((0.05, 0.05), (0.3, 0.05), (0.15, 0.3))):
+        loop[uv_layer].uv = corner
+    bm.to_mesh(obj.data)
+    bm.free()
+    non_manifold = [edge for edge in obj.data.edges if sum(edge.key == key for p in obj.data.polygons
+                                                            for key in p.edge_keys) > 2]
+    assert len(non_manifold) == 1
+    result = optimized([obj])
+    assert result.report["faces"] == 19 and result.report["vertices"] == 16 + 4
+
+
+def test_mirroring_object_transform():
+    obj = textured_grid()
+    obj.scale = (-1.0, 1.0, 1.0)
+    bpy.context.view_layer.update()
+    result = optimized([obj])
+    assert result.report["skipped_triangles"] == 0
+
+
+def test_linked_duplicates_are_optimized_once():
+    obj = textured_grid()
+    twin = obj.copy()  # shares obj.data
+    twin.location = (2, 0, 0)
+    bpy.context.scene.collection.objects.link(twin)
+    result = optimized([obj, twin])
+    assert result.report["objects"] == ["grid"] and result.report["faces"] == 18
+    assert any("shares mesh 'grid' with 'grid'" in note for note in result.report["notes"])
+    assert [layer.name for layer in twin.data.uv_layers] == ["UVMap", "PerceptualUV"]
+
+
+def test_full_set_of_uv_maps_is_refused_before_the_run():
+    obj = textured_grid()
+    for index in range(7):
+        obj.data.uv_layers.new(name=f"extra{index}")
+    refused([obj], match="already has 8 UV maps")
+
+
 # ---------------------------------------------------------------------------------------------------- faults
+def test_cancel_after_saving_removes_the_image_file(tmp_path):
+    obj = textured_grid()
+    before = state([obj])
+    run = optimize_objects([obj], SETTINGS, output_dir=str(tmp_path))
+    for progress in run:
+        if progress.stage == "done":  # the last step: the image is saved already
+            break
+    assert [p.name for p in tmp_path.iterdir()] == ["grid_texture_perceptual.png"]
+    run.close()
+    assert list(tmp_path.iterdir()) == [] and state([obj]) == before
+
+
+def test_an_existing_image_file_is_never_overwritten(tmp_path):
+    (tmp_path / "grid_texture_perceptual.png").write_bytes(b"someone else's file")
+    result = optimized([textured_grid()], output_dir=str(tmp_path))
+    assert result.report["image_file"] == str(tmp_path / "grid_texture_perceptual.001.png")
+    assert (tmp_path / "grid_texture_perceptual.png").read_bytes() == b"someone else's file"
+
 def test_failed_image_save_keeps_the_result_and_warns(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
@@ -449,3 +532,43 @@ def test_save_error_message_is_one_line_for_a_missing_drive():
     result = optimized([obj], output_dir=path)
     (warning,) = result.report["warnings"]
     assert "\n" not in warning and path in warning
+
+
+# ---------------------------------------------------------------------------------------------------- CLI
+def saved_blend(path, obj):
+    for image in bpy.data.images:
+        if image.has_data and image.packed_file is None:
+            image.pack()
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path
+
+
+def assert_one_line_refusal(result, *needles):
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("perceptual_uv: error: ")
+    for needle in needles:
+        assert needle in last
+
+
+def test_cli_refuses_a_collapsed_uv_map_in_one_line(tmp_path):
+    from test_cli_optimize import FAST_ARGS, run_cli
+
+    obj = textured_grid()
+    obj.data.uv_layers["UVMap"].uv.foreach_set("vector", np.zeros(2 * len(obj.data.loops), np.float32))
+    blend = saved_blend(tmp_path / "in.blend", obj)
+    out = tmp_path / "out" / "o.blend"
+    result = run_cli("optimize", str(blend), "--out", str(out), *FAST_ARGS)
+    assert_one_line_refusal(result, "collapsed to a point")
+    assert list(out.parent.iterdir()) == []
+
+
+def test_cli_refuses_an_unwritable_output_folder_before_running(tmp_path):
+    from test_cli_optimize import FAST_ARGS, run_cli
+
+    blend = saved_blend(tmp_path / "in.blend", textured_grid())
+    (tmp_path / "file").write_text("a file, not a folder")
+    result = run_cli("optimize", str(blend), "--out", str(tmp_path / "file" / "o.blend"), *FAST_ARGS)
+    assert_one_line_refusal(result, "cannot write into the output folder", str(tmp_path / "file"))
+    assert "[read]" not in result.stderr  # refused before the model was even opened
