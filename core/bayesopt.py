@@ -46,6 +46,7 @@ __all__ = ["BayesOptResult", "minimize", "minimize_constrained"]
 _SQRT5 = math.sqrt(5.0)
 _LOG_LENGTH_BOUNDS = (math.log(0.02), math.log(5.0))
 _LOG_NOISE_BOUNDS = (math.log(1e-6), math.log(1e-1))
+REFIT_ITERATIONS = 20
 
 
 @dataclasses.dataclass(frozen=True)
@@ -612,7 +613,7 @@ def _run(evaluate, plan, bounds, *, evaluations, initial_points, batch_size, x0,
     next_fit, fits_left = gp.n, fits
     while gp.n < evaluations and not stop():
         if fits_left > 0 and gp.n >= next_fit:
-            gp.fit()
+            gp.fit(max_iterations=20 if fits_left == fits else REFIT_ITERATIONS)
             search.hyperparameters_changed()
             next_fit, fits_left = 2 * gp.n, fits_left - 1
         acquisition, incumbents = plan(gp)
