@@ -7,7 +7,9 @@ from scipy.optimize import minimize_scalar
 
 from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import rotation
-from perceptual_uv.core.meshwise import barrier, fit_energy, iter_solve_meshwise, local_step, solve_meshwise
+from perceptual_uv.core.meshwise import (_hessian_blocks_kernel, _local_update_kernel, _local_update_reference,
+                                         _Objective, _prepare, barrier, fit_energy, iter_solve_meshwise,
+                                         local_step, solve_meshwise)
 
 HERE = pathlib.Path(__file__).resolve().parent
 SPOT = HERE / "data" / "spot" / "spot_triangulated.obj"
@@ -161,6 +163,54 @@ def test_local_step_theta_and_stretch_minimize_their_blocks():
         np.testing.assert_allclose(R[i], Rk, atol=1e-6)
         np.testing.assert_allclose(S[i], Sk, atol=1e-6)
         np.testing.assert_allclose(energy[i], e, rtol=1e-7)
+
+
+def test_local_update_kernel_matches_numpy_reference():
+    rng = np.random.default_rng(7)
+    m = 200
+    J = rng.normal(size=(m, 2, 2)) + 1.5 * np.eye(2)
+    R_bar = rotation(rng.uniform(0, 2 * np.pi, m))
+    A = rng.normal(size=(m, 2, 2))
+    S_bar = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(2)
+    w_R, w_S = rng.uniform(0, 2, m), rng.uniform(0, 2, m)
+    w_R[:20] = w_S[:20] = 0.0  # flat texture: no fit weight
+    k = rng.integers(0, 4, m)
+    R = rotation(rng.uniform(0, 2 * np.pi, m))
+    S = S_bar + 0.1
+    S = 0.5 * (S + np.swapaxes(S, 1, 2))
+    expected = _local_update_reference(J, R_bar, S_bar, w_R, w_S, 1e-2, k, R, S)
+    k2, R2, S2 = k.copy(), R.copy(), S.copy()
+    energy = _local_update_kernel(J, R_bar, S_bar, w_R, w_S, 1e-2, k2, R2, S2)
+    np.testing.assert_array_equal(k2, expected[0])
+    np.testing.assert_allclose(R2, expected[1], atol=1e-12)
+    np.testing.assert_allclose(S2, expected[2], atol=1e-12)
+    np.testing.assert_allclose(energy, expected[3], rtol=1e-10, atol=1e-14)
+
+
+def test_hessian_kernel_matches_numpy_reference_and_finite_differences(spot):
+    F, uv = spot
+    F, uv = F[:300], uv[:300]
+    topology = uv_topology(F, uv)
+    rng = np.random.default_rng(8)
+    S_bar = np.tile(0.8 * np.eye(2), (len(F), 1, 1))
+    problem = _prepare(topology, uv, S_bar, degenerate_tol=1e-10, barrier_threshold=0.5)
+    x = topology.vertex_uv * [0.5, 0.45] + rng.normal(scale=1e-4, size=topology.vertex_uv.shape)
+    J = problem.jacobians(x)
+    det = np.linalg.det(J)
+    assert np.all(det > 0) and np.any(det < problem.threshold)  # some barrier terms active
+    objective = _Objective(problem, rotation(rng.uniform(0, 1, len(F))) @ S_bar, 0.3, 0.05, 0.0)
+    grad, blocks = objective.gradient_and_blocks(J)
+    grad_ref, blocks_ref = objective.gradient_and_blocks_reference(J)
+    np.testing.assert_allclose(grad, grad_ref, rtol=1e-10, atol=1e-12 * np.abs(grad_ref).max())
+    np.testing.assert_allclose(blocks, blocks_ref, rtol=1e-10, atol=1e-12 * np.abs(blocks_ref).max())
+    # The gradient is the derivative of the objective (central differences along a random direction).
+    direction = rng.normal(size=x.shape)
+    direction[problem.free_index[: len(x)] < 0] = 0.0
+    h = 1e-7
+    numeric = (objective.value(problem.jacobians(x + h * direction))
+               - objective.value(problem.jacobians(x - h * direction))) / (2 * h)
+    reduced = np.concatenate([direction[:, 0], direction[:, 1]])[problem.free_index >= 0]
+    np.testing.assert_allclose(grad @ reduced, numeric, rtol=1e-5)
 
 
 def test_fit_energy_is_zero_for_a_quarter_turn_of_the_target():
