@@ -43,8 +43,11 @@ Decisions (the paper leaves them open):
   its sparse LU is reused (SuperLU, minimum degree on the symmetric structure; scipy offers no symbolic
   reuse, and feeding back SuperLU's own permutation was measured slower than reordering, see
   ``_NewtonSolver``).
+* Hot loops (local step, per-triangle gradient and Hessian blocks) are numba kernels; each keeps a plain
+  numpy reference (``_local_update_reference``, ``_Objective.gradient_and_blocks_reference``) that the tests
+  compare against.
 """
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -304,7 +307,7 @@ def _parse_weights(w, m, name):
 
 @dataclass(eq=False)
 class _Problem:
-    """Constant data of one solve: geometry of the input triangles and the fixed Hessian pattern."""
+    """Constant data of one solve: geometry of the input triangles and the reduced DOF numbering."""
 
     corner_vertex: np.ndarray  # (m, 3)
     gradient: np.ndarray  # (m, 3, 2): J = X^T gradient for corner positions X (3, 2)
@@ -314,7 +317,7 @@ class _Problem:
     n_vertices: int
     free_index: np.ndarray  # (2k,) reduced index of each DOF, -1 if fixed
     n_free: int
-    block_rows: np.ndarray = field(default=None)  # (m, 6) reduced DOF of local (a, j), -1 if fixed
+    block_rows: np.ndarray  # (m, 6) reduced DOF of local (a, j), -1 if fixed
 
     def jacobians(self, vertex_uv):
         X = vertex_uv[self.corner_vertex]  # (m, 3, 2)

@@ -7,7 +7,7 @@ from scipy.optimize import minimize_scalar
 
 from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import rotation
-from perceptual_uv.core.meshwise import (_hessian_blocks_kernel, _local_update_kernel, _local_update_reference,
+from perceptual_uv.core.meshwise import (_local_update_kernel, _local_update_reference,
                                          _Objective, _prepare, barrier, fit_energy, iter_solve_meshwise,
                                          local_step, solve_meshwise)
 
