@@ -1,6 +1,7 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Operator "Optimize UVs" (``uv.perceptual_optimize``): the whole method behind one button."""
 import time
+import traceback
 
 import bpy
 
@@ -123,5 +124,12 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
         except (ValueError, OSError) as error:
             self._end_modal(context)
             self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        except Exception as error:  # noqa: BLE001  an internal failure: still end the modal run cleanly
+            # The pipeline has removed what it created; the timer, progress bar and status text are ours.
+            traceback.print_exc()
+            self._end_modal(context)
+            self.report({"ERROR"}, f"Optimize UVs failed ({type(error).__name__}: {error}); nothing was changed, "
+                        "details are in the system console")
             return {"CANCELLED"}
         return {"RUNNING_MODAL"}

@@ -572,3 +572,66 @@ def test_cli_refuses_an_unwritable_output_folder_before_running(tmp_path):
     result = run_cli("optimize", str(blend), "--out", str(tmp_path / "file" / "o.blend"), *FAST_ARGS)
     assert_one_line_refusal(result, "cannot write into the output folder", str(tmp_path / "file"))
     assert "[read]" not in result.stderr  # refused before the model was even opened
+
+
+# ---------------------------------------------------------------------------------------------------- modal operator
+class _Recorder:
+    """Stands in for the window manager, workspace and operator reports of a modal run."""
+
+    def __init__(self):
+        self.calls = []
+
+    def __getattr__(self, name):
+        return lambda *args, **kwargs: self.calls.append((name, args))
+
+
+def modal_operator(pipeline):
+    from types import SimpleNamespace
+
+    from perceptual_uv.operators.optimize_uvs import UV_OT_perceptual_optimize as Operator
+
+    class FakeOperator:
+        modal, _end_modal, _restore_mode = Operator.modal, Operator._end_modal, Operator._restore_mode
+        _finish = Operator._finish
+
+        def __init__(self):
+            self._pipeline, self._timer, self._previous_mode = pipeline, "timer", "OBJECT"
+            self.reports = []
+
+        def report(self, kind, message):
+            self.reports.append((set(kind), message))
+
+    recorder = _Recorder()
+    context = SimpleNamespace(window_manager=recorder, workspace=recorder)
+    return FakeOperator(), context, recorder
+
+
+def test_modal_run_ends_cleanly_on_an_internal_failure():
+    def failing():
+        yield pipeline.Progress("triangle", 0, 1, "working")
+        raise RuntimeError("worker lost")
+
+    operator, context, recorder = modal_operator(failing())
+    from types import SimpleNamespace
+
+    assert operator.modal(context, SimpleNamespace(type="TIMER")) == {"CANCELLED"}
+    (kind, message), = operator.reports
+    assert kind == {"ERROR"} and "RuntimeError: worker lost" in message and "nothing was changed" in message
+    names = [name for name, _ in recorder.calls]
+    assert "event_timer_remove" in names and "progress_end" in names and ("status_text_set", (None,)) in recorder.calls
+
+
+def test_modal_escape_during_the_triangle_stage_leaves_nothing():
+    from types import SimpleNamespace
+
+    obj = textured_grid()
+    before = state([obj])
+    run = optimize_objects([obj], SETTINGS)
+    for progress in run:
+        if progress.stage == "triangle":
+            break
+    operator, context, recorder = modal_operator(run)
+    assert operator.modal(context, SimpleNamespace(type="ESC")) == {"CANCELLED"}
+    assert operator.reports == [({"WARNING"}, "Optimize UVs cancelled; nothing was changed")]
+    assert state([obj]) == before
+    assert "event_timer_remove" in [name for name, _ in recorder.calls]
