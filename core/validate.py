@@ -60,7 +60,8 @@ class ValidatedInput:
     zero_area_uv : (m,) bool ndarray
         Triangles with (numerically) zero area in UV.
     mirrored_uv : (m,) bool ndarray
-        Triangles whose UV corners run clockwise (mirrored texture halves); optimized like the others.
+        Triangles whose UV corners run clockwise (mirrored texture halves), zero-area ones excluded; optimized
+        like the others.
     outside_unit_square : bool
         Whether some UVs leave [0, 1] (the texture repeats there).
     notes : tuple of str
@@ -206,10 +207,10 @@ def check_memory_budget(n_vertices, n_triangles, texture_shape, *, workers=1, sc
     if budget is not None and estimate > budget:
         h, w = texture_shape[:2]
         detail = ", ".join(f"{name} {_gib(size)}" for name, size in parts.items())
-        raise ValueError(f"optimizing {what} ({n_triangles} triangles, {w} x {h} texture, "
-                         f"{int(workers) or os.cpu_count() or 1} worker processes) needs about {_gib(estimate)} ({detail}), "
-                         f"more than the memory budget of {_gib(budget)}; use fewer workers, a smaller texture or "
-                         "fewer triangles")
+        processes = int(workers) or os.cpu_count() or 1
+        raise ValueError(f"optimizing {what} ({n_triangles} triangles, {w} x {h} texture, {processes} worker "
+                         f"processes) needs about {_gib(estimate)} ({detail}), more than the memory budget of "
+                         f"{_gib(budget)}; use fewer workers, a smaller texture or fewer triangles")
     return estimate
 
 
@@ -349,5 +350,5 @@ def validate_inputs(mesh, texture, *, shows_texture=None, workers=1, screen_pixe
                      "are not optimized, follow their UV island and get their material's colour in the new image")
     outside = bool(np.any(mesh.uv < 0.0) or np.any(mesh.uv > 1.0))
     return ValidatedInput(mesh=mesh, texture=texture, optimize=optimize, zero_area_3d=zero_3d, zero_area_uv=zero_uv,
-                          mirrored_uv=signed_uv < 0, outside_unit_square=outside, notes=tuple(notes),
-                          memory_bytes=estimate)
+                          mirrored_uv=(signed_uv < 0) & ~zero_uv, outside_unit_square=outside,
+                          notes=tuple(notes), memory_bytes=estimate)

@@ -635,3 +635,18 @@ def test_modal_escape_during_the_triangle_stage_leaves_nothing():
     assert operator.reports == [({"WARNING"}, "Optimize UVs cancelled; nothing was changed")]
     assert state([obj]) == before
     assert "event_timer_remove" in [name for name, _ in recorder.calls]
+
+
+# ---------------------------------------------------------------------------------------------------- real assets
+@pytest.mark.slow
+def test_water_bottle_with_zero_area_uv_triangles(shared_models_dir):
+    """WaterBottle (glTF) has 80 UV triangles of zero area: skipped, said so, and the rest is flip-free."""
+    from perceptual_uv.bridge.mesh_io import import_model
+
+    objects = [obj for obj in import_model(shared_models_dir / "WaterBottle" / "WaterBottle.gltf")
+               if obj.type == "MESH"]
+    result = optimized(objects)
+    report = result.report
+    assert report["skipped_triangles"] == 80 and report["optimized_triangles"] == report["faces"] - 80
+    assert any("80 of 4510 triangles have zero area in UV map" in note for note in report["notes"])
+    assert abs(report["relative_cost"] - FAST["target_cost"]) <= 0.05 * FAST["target_cost"]
