@@ -1,0 +1,176 @@
+"""Whole-mesh evaluation of a UV map (paper Sec. 5.1): q_r at target relative costs, and E_iso.
+
+For each target relative cost ``c_r`` the integer resolution ``r`` closest to it (Eq. 20-21) is chosen, the
+ORIGINAL texture is baked through the reference UV map into an ``r x r`` image on the candidate UV map
+(Blender's Cycles bake), and 20 workbench views from the vertices of a regular dodecahedron (flat light,
+texture colour, linear interpolation, stored texture values) of the candidate are compared with the same views
+of the reference (reference UV map + original image) by mean GMSD (Eq. 22-23). The symmetric Dirichlet energy
+E_iso (Eq. 24) is computed with the UV map scaled to the surface area. Every q is reported with the screen size.
+
+References
+----------
+Sun et al. 2022, Sec. 5.1, Eq. 20-24.
+"""
+
+import time
+
+import bpy
+import numpy as np
+
+from ..core.cost import relative_cost, resolution_for_cost
+from ..core.evaluation import dodecahedron_cameras, perceptual_loss_of_views, symmetric_dirichlet
+from .material import base_color_image_node
+from .mesh_io import read_mesh
+from .render import Camera, WorkbenchRenderer
+from .bake import bake_base_color
+
+__all__ = ["reference_resolution", "mesh_arrays", "render_views", "evaluate_uv_map"]
+
+
+def reference_resolution(objects):
+    """The largest side of the base-colour images of ``objects`` (the input texture's resolution ``r_input``).
+
+    Raises
+    ------
+    ValueError
+        When no object has a base-colour image.
+    """
+    sizes = []
+    for obj in objects:
+        for slot in obj.material_slots:
+            node = base_color_image_node(slot.material)
+            if node is not None and node.image is not None:
+                sizes.append(max(int(node.image.size[0]), int(node.image.size[1])))
+    if not sizes or max(sizes) == 0:
+        raise ValueError("no base-colour image on the objects: nothing to evaluate")
+    return max(sizes)
+
+
+def mesh_arrays(objects, uv_name):
+    """World-space triangles and per-corner UVs of several objects, concatenated.
+
+    Returns
+    -------
+    V : (n, 3) float64 ndarray
+    F : (m, 3) int64 ndarray
+    uv : (m, 3, 2) float64 ndarray
+    """
+    Vs, Fs, uvs, offset = [], [], [], 0
+    for obj in objects:
+        arrays = read_mesh(obj, uv_name=uv_name)
+        Vs.append(arrays.V)
+        Fs.append(arrays.F + offset)
+        uvs.append(arrays.uv)
+        offset += len(arrays.V)
+    return np.concatenate(Vs), np.concatenate(Fs), np.concatenate(uvs)
+
+
+def _cameras(V, cams):
+    return [Camera(position=tuple(cams.positions[i]), look_at=tuple(cams.look_at), up=tuple(cams.up[i]),
+                   fov_degrees=cams.fov_degrees, clip_start=cams.clip_start, clip_end=cams.clip_end)
+            for i in range(len(cams))]
+
+
+def render_views(objects, *, uv_name, image=None, screen_pixels=512):
+    """Render the 20 dodecahedron views of ``objects`` textured through ``uv_name``.
+
+    Parameters
+    ----------
+    objects : sequence of bpy.types.Object
+    uv_name : str
+        UV map to texture with.
+    image : bpy.types.Image, optional
+        Texture for every face; by default each slot's own base-colour image.
+    screen_pixels : int, optional
+        Width and height of each view.
+
+    Returns
+    -------
+    list of 20 (screen_pixels, screen_pixels, 4) float32 ndarrays
+    """
+    objects = list(objects)
+    V, _, _ = mesh_arrays(objects, uv_name)
+    cameras = _cameras(V, dodecahedron_cameras(V))
+    with WorkbenchRenderer(width=int(screen_pixels), texture_values="stored") as renderer:
+        for obj in objects:
+            renderer.add_object(obj, uv_name=uv_name, image=image)
+        return [renderer.render(camera) for camera in cameras]
+
+
+def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
+                    margin=None, reference_views=None, keep_images=False):
+    """q_r at each target relative cost and E_iso of UV map ``uv_name`` (paper Sec. 5.1).
+
+    Parameters
+    ----------
+    objects : sequence of bpy.types.Object
+        Mesh objects sharing one texture atlas; not modified (the baked images are removed afterwards unless
+        ``keep_images``).
+    uv_name : str
+        The candidate UV map.
+    reference_uv : str
+        The input UV map, through which the original texture is read (it defines ``c_r = 1``).
+    costs : sequence of float, optional
+        Target relative costs ``c_r`` (> 0).
+    screen_pixels : int, optional
+        Width and height of each of the 20 views; q depends on it and is reported with it.
+    margin : int, optional
+        Bake margin in pixels; by default ``max(2, r // 128)``.
+    reference_views : list of ndarray, optional
+        Views from :func:`render_views` of the reference, to reuse across candidates.
+    keep_images : bool, optional
+        Keep the baked images (returned under ``images``).
+
+    Returns
+    -------
+    dict
+        ``uv_map``, ``reference_uv``, ``screen_pixels``, ``views`` (20), ``reference_resolution``, ``e_iso``
+        (Eq. 24, normalised), ``points``: one dict per cost with ``target_cost``, ``resolution`` r,
+        ``relative_cost`` (the realised c_r), ``q`` (mean GMSD, Eq. 22), ``q_views`` (20 floats), ``time_s``.
+
+    Raises
+    ------
+    ValueError
+        Empty objects, missing UV maps, no base-colour image, non-positive costs or screen size.
+    """
+    objects = list(objects)
+    if not objects:
+        raise ValueError("no objects to evaluate")
+    costs = [float(c) for c in costs]
+    if not costs or any(not np.isfinite(c) or c <= 0 for c in costs):
+        raise ValueError(f"costs must be positive numbers, got {costs}")
+    if int(screen_pixels) < 16:
+        raise ValueError(f"screen_pixels must be >= 16, got {screen_pixels}")
+    for obj in objects:
+        for name in (uv_name, reference_uv):
+            if obj.type != "MESH" or name not in obj.data.uv_layers:
+                raise ValueError(f"'{obj.name}' has no UV map '{name}'")
+    r_input = reference_resolution(objects)
+    V, F, uv = mesh_arrays(objects, uv_name)
+    _, _, uv_ref = mesh_arrays(objects, reference_uv)
+    if reference_views is None:
+        reference_views = render_views(objects, uv_name=reference_uv, screen_pixels=screen_pixels)
+    e_iso = float(symmetric_dirichlet(V, F, uv))
+    points, images = [], []
+    for target in costs:
+        start = time.perf_counter()
+        r = int(resolution_for_cost(uv, target, reference_uv=uv_ref, reference_resolution=r_input))
+        c = float(relative_cost(uv, r, reference_uv=uv_ref, reference_resolution=r_input))
+        image = bake_base_color(objects, source_uv=reference_uv, target_uv=uv_name, resolution=r,
+                                margin=max(2, r // 128) if margin is None else int(margin),
+                                image_name=f"PUV_eval_{uv_name}_{r}")
+        try:
+            views = render_views(objects, uv_name=uv_name, image=image, screen_pixels=screen_pixels)
+        finally:
+            if keep_images:
+                images.append(image)
+            else:
+                bpy.data.images.remove(image)
+        q, per_view = perceptual_loss_of_views(reference_views, views, full=True)
+        points.append(dict(target_cost=target, resolution=r, relative_cost=c, q=float(q),
+                           q_views=[float(x) for x in per_view], time_s=time.perf_counter() - start))
+    result = dict(uv_map=uv_name, reference_uv=reference_uv, screen_pixels=int(screen_pixels),
+                  views=len(reference_views), reference_resolution=r_input, e_iso=e_iso, points=points)
+    if keep_images:
+        result["images"] = images
+    return result
