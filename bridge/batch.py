@@ -149,5 +149,56 @@ def optimize_file(args):
 
 
 def evaluate_file(args):
-    """``evaluate``: the Sec. 5 evaluation is not implemented yet (issue 6)."""
-    raise NotImplementedError("evaluate is not implemented yet")
+    """``evaluate``: q_r at each relative cost and E_iso of a UV map (paper Sec. 5.1), JSON and a plot.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``input``, ``uv``, ``ref_uv`` (None: the active UV map), ``costs``, ``json``, ``plot``.
+
+    Returns
+    -------
+    dict
+        The result of :func:`bridge.evaluate.evaluate_uv_map` with ``input`` added.
+
+    Raises
+    ------
+    ValueError
+        No textured mesh object, or a UV map missing on an object.
+    """
+    from .evaluate import evaluate_uv_map
+    from .mesh_io import import_model
+
+    import_model(args.input)
+    objects = [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]
+    objects = [obj for obj in objects if args.uv in obj.data.uv_layers]
+    if not objects:
+        raise ValueError(f"no mesh object in {args.input} has a UV map '{args.uv}'")
+    ref_uv = args.ref_uv or objects[0].data.uv_layers.active.name
+    result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs)
+    result["input"] = str(pathlib.Path(args.input).resolve())
+    for p in result["points"]:
+        print(f"c_r {p['relative_cost']:.4f} (r {p['resolution']}): q {p['q']:.6g} "
+              f"[{result['views']} views, {result['screen_pixels']} px]")
+    print(f"E_iso {result['e_iso']:.6g}")
+    if args.json:
+        pathlib.Path(args.json).write_text(json.dumps(result, indent=2))
+        print(f"json: {pathlib.Path(args.json).resolve()}")
+    if args.plot:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(4.5, 3.2), dpi=100)
+        ax.plot([p["relative_cost"] for p in result["points"]], [p["q"] for p in result["points"]], "o-",
+                label=args.uv)
+        ax.set_yscale("log")
+        ax.set_xlabel("relative cost $c_r$")
+        ax.set_ylabel(f"$q_r$ (GMSD, {result['screen_pixels']} px)")
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(args.plot)
+        plt.close(fig)
+        print(f"plot: {pathlib.Path(args.plot).resolve()}")
+    return result
