@@ -1,0 +1,184 @@
+"""Baseline UV maps for the comparisons of paper Sec. 5.2, each a new UV map on the same objects with the input cuts.
+
+Every function adds one UV map (the input UV map, image, materials and mesh stay as they were; Blender's
+unwrap runs on temporary copies of the objects) and packs it with 90-degree rotations only
+(:func:`bridge.pack.pack_uv_layer`, DESIGN decision 7).
+
+References
+----------
+Sun et al. 2022, Sec. 5.2 (baselines), Fig. 17 (weight ablations), Fig. 18 (epsilon); Sander et al. 2002 (SSP).
+"""
+
+import time
+
+import bpy
+import numpy as np
+
+from ..core.meshwise import solve_meshwise
+from ..core.ssp import solve_ssp, ssp_targets
+from ..core.trianglewise import optimize_triangles
+from .mesh_io import read_image, read_mesh, write_uv_layer
+from .pack import pack_uv_layer
+from .evaluate import reference_resolution
+from .material import base_color_image_node
+
+__all__ = ["BLENDER_METHODS", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv", "perceptual_uv",
+           "triangle_targets"]
+
+BLENDER_METHODS = ("ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH")
+
+PACK_MARGIN_PIXELS = 4
+
+
+def _check(objects, source_uv, name):
+    objects = list(objects)
+    if not objects:
+        raise ValueError("no objects")
+    for obj in objects:
+        if obj.type != "MESH" or source_uv not in obj.data.uv_layers:
+            raise ValueError(f"'{obj.name}' has no UV map '{source_uv}'")
+        if name in obj.data.uv_layers:
+            raise ValueError(f"'{obj.name}' already has a UV map '{name}'")
+    return objects
+
+
+def _pack(objects, name):
+    pack_uv_layer(objects, name, margin_fraction=PACK_MARGIN_PIXELS / reference_resolution(objects))
+
+
+def _write(objects, name, uv_all):
+    """Write concatenated per-corner UVs (in :func:`read_mesh` order over ``objects``) as new UV maps."""
+    start = 0
+    for obj in objects:
+        arrays = read_mesh(obj)
+        m = len(arrays.F)
+        write_uv_layer(obj, name, uv_all[start:start + m], arrays.tri_loops)
+        start += m
+
+
+def _arrays(objects, uv_name):
+    Vs, Fs, uvs, offset = [], [], [], 0
+    for obj in objects:
+        a = read_mesh(obj, uv_name=uv_name)
+        Vs.append(a.V)
+        Fs.append(a.F + offset)
+        uvs.append(a.uv)
+        offset += len(a.V)
+    return np.concatenate(Vs), np.concatenate(Fs), np.concatenate(uvs)
+
+
+def _texture(objects):
+    for obj in objects:
+        for slot in obj.material_slots:
+            node = base_color_image_node(slot.material)
+            if node is not None and node.image is not None:
+                return read_image(node.image)
+    raise ValueError("no base-colour image")
+
+
+def repacked_input(objects, *, source_uv, name="InputRepacked"):
+    """The input UV map copied to ``name`` and re-packed with 90-degree rotations. Returns timings (s)."""
+    objects = _check(objects, source_uv, name)
+    start = time.perf_counter()
+    _, _, uv = _arrays(objects, source_uv)
+    _write(objects, name, uv)
+    _pack(objects, name)
+    return {"total": time.perf_counter() - start}
+
+
+def blender_unwrap(objects, *, source_uv, method, name=None):
+    """Blender's unwrap (``method`` in :data:`BLENDER_METHODS`) with seams from the input islands, packed.
+
+    The unwrap runs on temporary copies (seams marked there); the result is copied to a new UV map ``name``
+    (default the method's name) on the original objects. Returns timings (s).
+    """
+    if method not in BLENDER_METHODS:
+        raise ValueError(f"method must be one of {BLENDER_METHODS}, got {method!r}")
+    name = name or method
+    objects = _check(objects, source_uv, name)
+    start = time.perf_counter()
+    uvs = []
+    for obj in objects:
+        mesh = obj.data.copy()
+        tmp = bpy.data.objects.new("PUV_unwrap_tmp", mesh)
+        bpy.context.scene.collection.objects.link(tmp)
+        try:
+            for other in bpy.context.view_layer.objects:
+                other.select_set(False)
+            bpy.context.view_layer.objects.active = tmp
+            tmp.select_set(True)
+            mesh.uv_layers.active = mesh.uv_layers[source_uv]
+            bpy.ops.object.mode_set(mode="EDIT")
+            bpy.ops.mesh.select_all(action="SELECT")
+            bpy.ops.uv.select_all(action="SELECT")
+            bpy.ops.uv.seams_from_islands(mark_seams=True)
+            bpy.ops.uv.unwrap(method=method, margin=0.0)
+            bpy.ops.object.mode_set(mode="OBJECT")
+            values = np.empty(2 * len(mesh.loops))
+            mesh.uv_layers[source_uv].data.foreach_get("uv", values)
+            uvs.append(values.reshape(-1, 2))
+        finally:
+            if bpy.context.object is not None and bpy.context.object.mode != "OBJECT":
+                bpy.ops.object.mode_set(mode="OBJECT")
+            bpy.data.objects.remove(tmp)
+            bpy.data.meshes.remove(mesh)
+    for obj, values in zip(objects, uvs):
+        layer = obj.data.uv_layers.new(name=name)
+        layer.data.foreach_set("uv", values.ravel())
+    _pack(objects, name)
+    return {"total": time.perf_counter() - start}
+
+
+def ssp_uv(objects, *, source_uv, name="SSP", **options):
+    """SSP (Sander et al. 2002) from the input UV map and texture, packed. Returns timings (s)."""
+    objects = _check(objects, source_uv, name)
+    start = time.perf_counter()
+    V, F, uv = _arrays(objects, source_uv)
+    result = solve_ssp(V, F, uv, _texture(objects), **options)
+    _write(objects, name, result.uv)
+    _pack(objects, name)
+    return {"total": time.perf_counter() - start}
+
+
+def sspop_uv(objects, *, source_uv, name="SSPOP"):
+    """SSP's expected stretch as targets of our mesh-wise solver with w_R = 0 (paper Sec. 5.2.2), packed."""
+    objects = _check(objects, source_uv, name)
+    start = time.perf_counter()
+    V, F, uv = _arrays(objects, source_uv)
+    params, w_R, w_S = ssp_targets(V, F, uv, _texture(objects))
+    result = solve_meshwise(F, uv, params, w_R, w_S)
+    _write(objects, name, result.uv)
+    _pack(objects, name)
+    return {"total": time.perf_counter() - start}
+
+
+def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=64, workers=1, seed=0):
+    """The triangle-wise stage (Sec. 4.1) on the objects: its result and its time (s), reusable across ablations."""
+    V, F, uv = _arrays(objects, source_uv)
+    texture = _texture(objects)
+    luma = texture[..., :3] @ np.array([0.299, 0.587, 0.114]) if texture.ndim == 3 else texture
+    start = time.perf_counter()
+    result = optimize_triangles(V, F, uv, luma, epsilon=epsilon, evaluations=evaluations,
+                                screen_pixels=screen_pixels, workers=workers, seed=seed)
+    return result, time.perf_counter() - start
+
+
+def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual"):
+    """Our mesh-wise stage on triangle-wise results ``triangles``, with the Fig. 17 ablations, packed.
+
+    Parameters
+    ----------
+    triangles : result of :func:`core.trianglewise.optimize_triangles`
+        Must expose ``params`` (m, 4), ``w_R`` and ``w_S`` (m,).
+    weights : {"perceptual", "identity"}
+    formulation : {"perceptual", "common"}
+    """
+    objects = _check(objects, source_uv, name)
+    start = time.perf_counter()
+    _, F, uv = _arrays(objects, source_uv)
+    result = solve_meshwise(F, uv, triangles.params, triangles.w_R, triangles.w_S, weights=weights,
+                            formulation=formulation)
+    t_mesh = time.perf_counter() - start
+    _write(objects, name, result.uv)
+    _pack(objects, name)
+    return {"mesh": t_mesh, "total": time.perf_counter() - start}
