@@ -161,6 +161,11 @@ def main(argv=None):
     except NotImplementedError as error:
         print(f"{PROG}: {error}", file=sys.stderr)
         return 1
+    except RuntimeError as error:
+        if type(error).__name__ != "WorkerDiedError":
+            raise
+        print(f"{PROG}: error: {error}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"{PROG}: cancelled", file=sys.stderr)
         return 130

@@ -74,7 +74,7 @@ from . import bayesopt
 from .loss import prepare_triangles
 from .one_ring import one_ring_faces
 
-__all__ = ["LAMBDA_MIN", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
+__all__ = ["WorkerDiedError", "LAMBDA_MIN", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
            "optimize_triangle", "iter_optimize_triangles", "optimize_triangles", "losses_at"]
 
 LAMBDA_MIN = 0.1
@@ -484,6 +484,10 @@ def _spawn_environment():
                 os.environ[key] = value
 
 
+class WorkerDiedError(RuntimeError):
+    """A worker process of the triangle-wise stage ended without delivering its results."""
+
+
 def _make_pool(workers, state):
     import multiprocessing
 
@@ -513,8 +517,22 @@ def _run_chunks(kind, state, faces, workers, chunk_size):
         for chunk in chunks:
             yield (_optimize_chunk if kind == "optimize" else _losses_chunk)(state, chunk)
         return
+    import multiprocessing
+
+    # Pool replaces a worker that dies but loses its task, so the results would never arrive: wait in short
+    # slices and give up with a clear error once any of the original workers is gone.
+    original_workers = {process.pid for process in pool._pool}
     try:
-        for output in pool.imap_unordered(_chunk_call, [(kind, chunk) for chunk in chunks]):
+        results = pool.imap_unordered(_chunk_call, [(kind, chunk) for chunk in chunks])
+        for _ in chunks:
+            while True:
+                try:
+                    output = results.next(timeout=1.0)
+                    break
+                except multiprocessing.TimeoutError:
+                    if {process.pid for process in pool._pool} != original_workers:
+                        raise WorkerDiedError("a worker process of the triangle-wise stage died (out of memory or "
+                                           "killed?); run again with fewer workers") from None
             yield output
         pool.close()
         pool.join()

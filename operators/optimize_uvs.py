@@ -73,7 +73,7 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
 
         try:
             result = run_to_end(self._start(context))
-        except (ValueError, OSError) as error:
+        except (ValueError, OSError, RuntimeError) as error:  # RuntimeError: a dead worker
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
         finally:
@@ -121,7 +121,7 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
             self._end_modal(context)
             self._finish(context, finished.value)
             return {"FINISHED"}
-        except (ValueError, OSError) as error:
+        except (ValueError, OSError, RuntimeError) as error:  # RuntimeError: a dead worker
             self._end_modal(context)
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
