@@ -401,6 +401,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                                       reference_resolution=(width, height)),
             "times_s": {key: round(value, 3) for key, value in times.items()},
             "flipped_triangles": int(meshwise.flipped),
+            "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
             "optimized_triangles": int(len(faces)),
             "skipped_triangles": int(m - len(faces)),
@@ -419,6 +420,15 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     except BaseException:
         created.remove_all()
         raise
+
+
+def _overlap_report(uv, face_chart):
+    """Triangle pairs whose packed UV images overlap, within and between charts (core.overlap)."""
+    from ..core.overlap import count_overlaps
+
+    overlaps = count_overlaps(uv, face_chart)
+    return {"total": int(overlaps.total), "within_charts": int(overlaps.within_charts),
+            "between_charts": int(overlaps.between_charts)}
 
 
 def _relay(stage, name, label, started):

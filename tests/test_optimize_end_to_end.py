@@ -158,6 +158,8 @@ def test_report_fields(registered, spot_obj, tmp_path):
     assert set(report["times_s"]) == {"triangle", "mesh", "pack", "bake", "total"}
     assert report["faces"] == len(obj.data.loop_triangles)
     assert report["flipped_triangles"] == 0
+    overlaps = report["overlapping_pairs"]
+    assert overlaps["total"] == overlaps["within_charts"] + overlaps["between_charts"] >= 0
     assert 0 <= report["triangles_within_bound"] <= 1
     assert abs(report["relative_cost"] - 0.3) <= 0.015
     assert (tmp_path / "spot_texture_perceptual.png").is_file() and report["image_file"].startswith(str(tmp_path))
