@@ -121,7 +121,7 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
             self._end_modal(context)
             self._finish(context, finished.value)
             return {"FINISHED"}
-        except (ValueError, OSError, RuntimeError) as error:  # RuntimeError: a dead worker
+        except (ValueError, OSError) as error:
             self._end_modal(context)
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
