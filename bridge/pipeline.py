@@ -484,8 +484,6 @@ def _read_packed(objects, mesh, uv_name):
 
 def run_to_end(generator):
     """Drive a pipeline generator to completion and return its result."""
-    while True:
-        try:
-            next(generator)
-        except StopIteration as finished:
-            return finished.value
+    from ..core.progress import run_generator
+
+    return run_generator(generator)

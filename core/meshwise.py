@@ -53,6 +53,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from .progress import run_generator
 from ._jit import njit
 from .charts import UVTopology, uv_topology, validate_faces_and_uv
 from .deformation import jacobian, rotation
@@ -821,10 +822,4 @@ def solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", 
                                     barrier_threshold=barrier_threshold, max_iterations=max_iterations, tol=tol,
                                     newton_iterations=newton_iterations, degenerate_tol=degenerate_tol,
                                     topology=topology)
-    while True:
-        try:
-            done, total = next(generator)
-        except StopIteration as finished:
-            return finished.value
-        if progress is not None:
-            progress(done, total)
+    return run_generator(generator, progress)

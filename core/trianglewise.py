@@ -71,6 +71,7 @@ import types
 import numpy as np
 
 from . import bayesopt
+from .progress import run_generator
 from .loss import prepare_triangles
 from .one_ring import one_ring_faces
 
@@ -649,13 +650,7 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
                                     screen_pixels=screen_pixels, lambda_min=lambda_min, formulation=formulation,
                                     backend=backend, workers=workers, seed=seed, faces=faces,
                                     chunk_size=chunk_size)
-    while True:
-        try:
-            done, total = next(stage)
-        except StopIteration as finished:
-            return finished.value
-        if progress is not None:
-            progress(done, total)
+    return run_generator(stage, progress)
 
 
 def _params_from_jacobians(J):
