@@ -53,10 +53,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
-from .progress import run_generator
 from ._jit import njit
 from .charts import UVTopology, uv_topology, validate_faces_and_uv
 from .deformation import jacobian, rotation
+from .progress import run_generator
 
 __all__ = [
     "MeshwiseResult",

@@ -71,9 +71,9 @@ import types
 import numpy as np
 
 from . import bayesopt
-from .progress import run_generator
 from .loss import prepare_triangles
 from .one_ring import one_ring_faces
+from .progress import run_generator
 
 __all__ = ["WorkerDiedError", "LAMBDA_MIN", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
            "optimize_triangle", "iter_optimize_triangles", "optimize_triangles", "losses_at"]
