@@ -19,7 +19,7 @@ from ..core.ssp import solve_ssp, ssp_targets
 from ..core.trianglewise import optimize_triangles
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer
-from .evaluate import reference_resolution
+from .evaluate import mesh_arrays, reference_resolution
 from .material import base_color_image_node
 
 __all__ = ["BLENDER_METHODS", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv", "perceptual_uv",
@@ -56,17 +56,6 @@ def _write(objects, name, uv_all):
         start += m
 
 
-def _arrays(objects, uv_name):
-    Vs, Fs, uvs, offset = [], [], [], 0
-    for obj in objects:
-        a = read_mesh(obj, uv_name=uv_name)
-        Vs.append(a.V)
-        Fs.append(a.F + offset)
-        uvs.append(a.uv)
-        offset += len(a.V)
-    return np.concatenate(Vs), np.concatenate(Fs), np.concatenate(uvs)
-
-
 def _texture(objects):
     for obj in objects:
         for slot in obj.material_slots:
@@ -80,7 +69,7 @@ def repacked_input(objects, *, source_uv, name="InputRepacked"):
     """The input UV map copied to ``name`` and re-packed with 90-degree rotations. Returns timings (s)."""
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
-    _, _, uv = _arrays(objects, source_uv)
+    _, _, uv = mesh_arrays(objects, source_uv)
     _write(objects, name, uv)
     _pack(objects, name)
     return {"total": time.perf_counter() - start}
@@ -133,7 +122,7 @@ def ssp_uv(objects, *, source_uv, name="SSP", **options):
     """SSP (Sander et al. 2002) from the input UV map and texture, packed. Returns timings (s)."""
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
-    V, F, uv = _arrays(objects, source_uv)
+    V, F, uv = mesh_arrays(objects, source_uv)
     result = solve_ssp(V, F, uv, _texture(objects), **options)
     _write(objects, name, result.uv)
     _pack(objects, name)
@@ -144,7 +133,7 @@ def sspop_uv(objects, *, source_uv, name="SSPOP"):
     """SSP's expected stretch as targets of our mesh-wise solver with w_R = 0 (paper Sec. 5.2.2), packed."""
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
-    V, F, uv = _arrays(objects, source_uv)
+    V, F, uv = mesh_arrays(objects, source_uv)
     params, w_R, w_S = ssp_targets(V, F, uv, _texture(objects))
     result = solve_meshwise(F, uv, params, w_R, w_S)
     _write(objects, name, result.uv)
@@ -154,7 +143,7 @@ def sspop_uv(objects, *, source_uv, name="SSPOP"):
 
 def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=64, workers=1, seed=0):
     """The triangle-wise stage (Sec. 4.1) on the objects: its result and its time (s), reusable across ablations."""
-    V, F, uv = _arrays(objects, source_uv)
+    V, F, uv = mesh_arrays(objects, source_uv)
     texture = _texture(objects)
     luma = texture[..., :3] @ np.array([0.299, 0.587, 0.114]) if texture.ndim == 3 else texture
     start = time.perf_counter()
@@ -175,7 +164,7 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     """
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
-    _, F, uv = _arrays(objects, source_uv)
+    _, F, uv = mesh_arrays(objects, source_uv)
     result = solve_meshwise(F, uv, triangles.params, triangles.w_R, triangles.w_S, weights=weights,
                             formulation=formulation)
     t_mesh = time.perf_counter() - start

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..core.cost import relative_cost, resolution_for_cost
 from ..core.evaluation import dodecahedron_cameras, perceptual_loss_of_views, symmetric_dirichlet
+from ..core.mesh import concatenate_meshes
 from .material import base_color_image_node
 from .mesh_io import read_mesh
 from .render import Camera, WorkbenchRenderer
@@ -55,14 +56,8 @@ def mesh_arrays(objects, uv_name):
     F : (m, 3) int64 ndarray
     uv : (m, 3, 2) float64 ndarray
     """
-    Vs, Fs, uvs, offset = [], [], [], 0
-    for obj in objects:
-        arrays = read_mesh(obj, uv_name=uv_name)
-        Vs.append(arrays.V)
-        Fs.append(arrays.F + offset)
-        uvs.append(arrays.uv)
-        offset += len(arrays.V)
-    return np.concatenate(Vs), np.concatenate(Fs), np.concatenate(uvs)
+    mesh = concatenate_meshes([read_mesh(obj, uv_name=uv_name) for obj in objects])
+    return mesh.V, mesh.F, mesh.uv
 
 
 def _cameras(V, cams):

@@ -41,7 +41,7 @@ from .bake_lsq import (DEFAULT_RIDGE, _apply_renumber, _band_cholesky_solve, _en
 from .camera import triangle_cameras
 from .gmsd import GMSD_C, _gmsd_padded_pooled_kernel, _pooled_gradient_kernel, luma as _to_luma
 from .one_ring import one_ring_faces
-from .raster import _rasterize_kernel, rasterize, sample_bilinear, texel_coordinates
+from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
 
 __all__ = ["TriangleProblem", "TriangleBatch", "texture_luma", "triangle_problem", "prepare_triangles",
            "render_reference"]
@@ -68,16 +68,8 @@ def texture_luma(texture):
 
 
 def _check_inputs(V, F, uv):
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    F = np.asarray(F)
+    V, F = check_mesh(V, F)
     uv = np.ascontiguousarray(uv, dtype=np.float64)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F must be an integer array of shape (m, 3), got {F.dtype} {F.shape}")
-    F = np.ascontiguousarray(F, dtype=np.int64)
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        raise ValueError("F refers to vertices outside V")
     if uv.shape != (len(F), 3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2) = {(len(F), 3, 2)}, got {uv.shape}")
     if not (np.isfinite(V).all() and np.isfinite(uv).all()):

@@ -21,7 +21,7 @@ import numpy as np
 from ._jit import njit
 from .camera import CLIP_FAR, CLIP_NEAR, EYE_DISTANCE, TriangleCameras
 
-__all__ = ["Raster", "rasterize", "texel_coordinates", "bilinear_weights", "sample_bilinear",
+__all__ = ["Raster", "check_mesh", "rasterize", "texel_coordinates", "bilinear_weights", "sample_bilinear",
            "deform_points", "screen_operator"]
 
 # A pixel centre on a shared edge must land in one of the two triangles despite round-off.
@@ -148,7 +148,8 @@ def _rasterize_reference(V, F, draw, camera):
     return Raster(hit, face[hit], bary[hit], n)
 
 
-def _check_mesh(V, F):
+def check_mesh(V, F):
+    """``V`` as contiguous (n, 3) float64 and ``F`` as contiguous (m, 3) int64 indices into it, or ValueError."""
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.asarray(F)
     if V.ndim != 2 or V.shape[1] != 3:
@@ -182,7 +183,7 @@ def rasterize(V, F, draw, camera):
     -------
     Raster
     """
-    V, F = _check_mesh(V, F)
+    V, F = check_mesh(V, F)
     draw = np.ascontiguousarray(draw, dtype=np.int64).reshape(-1)
     if draw.size and (draw.min() < 0 or draw.max() >= len(F)):
         raise ValueError("draw refers to triangles outside F")

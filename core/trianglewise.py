@@ -546,13 +546,9 @@ def _chunk_call(task):
 
 
 def _check_mesh(V, F, uv, luma, faces):
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    F = np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F must be an integer array of shape (m, 3), got {F.dtype} {F.shape}")
-    F = np.ascontiguousarray(F, dtype=np.int64)
+    from .raster import check_mesh
+
+    V, F = check_mesh(V, F)
     uv = np.ascontiguousarray(uv, dtype=np.float64)
     if uv.shape != (len(F), 3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2) = {(len(F), 3, 2)}, got {uv.shape}")
