@@ -83,6 +83,7 @@ ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
 TOLERANCE = None
+STRETCH_WEIGHT_FLOOR = 0.1
 _QUARTER = 0.5 * math.pi
 _FORMULATIONS = ("constrained", "barrier")
 _BACKENDS = ("fast", "skopt")
@@ -356,6 +357,10 @@ class TrianglewiseResult:
         Faces skipped because their one-ring texture is constant.
     epsilon, lambda_min : float
     formulation, backend : str
+
+    See Also
+    --------
+    TrianglewiseResult.fit_weights : the weights the mesh-wise stage should use.
     """
 
     faces: np.ndarray
@@ -370,6 +375,35 @@ class TrianglewiseResult:
     lambda_min: float
     formulation: str
     backend: str
+
+    def fit_weights(self, *, floor=STRETCH_WEIGHT_FLOOR):
+        """Weights for the mesh-wise fit (Eq. 19): ``w_R`` and ``w_S + (floor * epsilon)^2``.
+
+        Parameters
+        ----------
+        floor : float, optional
+            The stretch weight never falls below that of a loss varying by ``floor * epsilon`` (0 gives
+            Eq. 17's variances unchanged).
+
+        Returns
+        -------
+        w_R, w_S : (k,) float64 ndarray
+
+        Notes
+        -----
+        Eq. 17 measures how the loss reacts; the cost of Eq. 7 (texel area) appears in the mesh-wise stage only
+        through the target stretch ``S_bar``. Where the loss does not react at all (constant one-rings, 47 % of
+        the bundled spot's faces) or barely (smooth texture, a median ``w_S`` of 5e-6 there), Eq. 19 leaves
+        the triangle free: it keeps the input's size while the detailed triangles shrink to their targets, so
+        the texels go to the triangles that need them least. The floor makes every optimized triangle pull
+        towards its smallest-area stretch as if its loss varied by a tenth of the bound. Rotation gets no floor:
+        it changes neither the loss of such a triangle nor its area. On spot (100 evaluations, epsilon 0.01,
+        q_r at c_r = 0.3, 512 px, 20 views) the floor lowers q_r from 1.16e-2 to 8.7e-4; floors from
+        ``0.055 epsilon`` to ``0.3 epsilon`` all give 0.87e-3 to 1.41e-3.
+        """
+        if not (np.isfinite(floor) and floor >= 0):
+            raise ValueError(f"floor must be a non-negative number, got {floor}")
+        return self.w_R.copy(), self.w_S + (floor * self.epsilon) ** 2
 
 
 def _face_seed(seed, face):

@@ -300,3 +300,42 @@ def test_worker_processes_give_identical_results_even_under_a_blender_style_pack
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.strip().endswith("OK 18")
+
+
+# --- weights handed to the mesh-wise stage ---------------------------------------------------------------------
+
+def _result_with_weights(w_R, w_S, *, epsilon):
+    k = len(w_S)
+    return tw.TrianglewiseResult(
+        faces=np.arange(k), params=np.tile([0.0, tw.LAMBDA_MIN, tw.LAMBDA_MIN, 0.0], (k, 1)), loss=np.zeros(k),
+        w_R=np.asarray(w_R, float), w_S=np.asarray(w_S, float), evaluations=np.zeros(k, int),
+        feasible=np.ones(k, bool), is_constant=np.zeros(k, bool), epsilon=epsilon, lambda_min=tw.LAMBDA_MIN,
+        formulation="constrained", backend="fast")
+
+
+def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_the_bound():
+    result = _result_with_weights([0.0, 2e-3], [0.0, 1e-3], epsilon=0.02)
+    w_R, w_S = result.fit_weights()
+    np.testing.assert_array_equal(w_R, [0.0, 2e-3])  # rotation: no floor
+    np.testing.assert_allclose(w_S, [4e-6, 1e-3 + 4e-6], rtol=1e-12)  # (0.1 * 0.02)^2 = 4e-6
+    np.testing.assert_array_equal(result.fit_weights(floor=0.0)[1], [0.0, 1e-3])
+    with pytest.raises(ValueError, match="floor"):
+        result.fit_weights(floor=-1.0)
+
+
+def test_constant_triangles_shrink_to_their_target_only_with_the_floor():
+    """A chart whose loss never reacts (Eq. 17 weights 0) keeps its size under Eq. 19 as written; with the
+    floor it reaches its smallest-area target, a uniform scale by lambda_min (area ratio lambda_min^2)."""
+    from perceptual_uv.core.meshwise import solve_meshwise
+
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    uv = np.array([[[0.0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]])
+    result = _result_with_weights([0.0, 0.0], [0.0, 0.0], epsilon=0.01)
+
+    def area_ratio(w_R, w_S):
+        new = solve_meshwise(F, uv, result.params, w_R, w_S).uv
+        area = lambda t: 0.5 * np.abs(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])).sum()  # noqa: E731
+        return area(new) / area(uv)
+
+    assert area_ratio(result.w_R, result.w_S) == pytest.approx(1.0, abs=1e-9)
+    assert area_ratio(*result.fit_weights()) == pytest.approx(tw.LAMBDA_MIN ** 2, rel=0.02)
