@@ -157,16 +157,16 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
 
     Parameters
     ----------
-    triangles : result of :func:`core.trianglewise.optimize_triangles`
-        Must expose ``params`` (m, 4), ``w_R`` and ``w_S`` (m,).
+    triangles : core.trianglewise.TrianglewiseResult
+        Of every face; its ``fit_weights()`` weigh the fit, as in the pipeline.
     weights : {"perceptual", "identity"}
     formulation : {"perceptual", "common"}
     """
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
     _, F, uv = mesh_arrays(objects, source_uv)
-    result = solve_meshwise(F, uv, triangles.params, triangles.w_R, triangles.w_S, weights=weights,
-                            formulation=formulation)
+    w_R, w_S = triangles.fit_weights()
+    result = solve_meshwise(F, uv, triangles.params, w_R, w_S, weights=weights, formulation=formulation)
     t_mesh = time.perf_counter() - start
     _write(objects, name, result.uv)
     _pack(objects, name)
