@@ -3,13 +3,14 @@
 
 The bridge fills a :class:`MeshArrays` from Blender data; everything in ``core`` consumes it. The triangle
 to loop map (``tri_loops``, ``tri_polygons``) lets results computed per triangle corner be written back onto
-the original polygons' loops, so quads and n-gons keep their topology.
+the original polygons' loops, so quads and n-gons keep their topology. :func:`read_obj` reads the same arrays
+from a triangulated Wavefront OBJ file (tests, benchmarks, scripts outside Blender).
 """
 import dataclasses
 
 import numpy as np
 
-__all__ = ["MeshArrays", "validate_mesh_arrays", "concatenate_meshes"]
+__all__ = ["MeshArrays", "validate_mesh_arrays", "concatenate_meshes", "read_obj"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -137,3 +138,78 @@ def concatenate_meshes(meshes):
         object_names=tuple(names),
         uv_name=uv_names.pop() if len(uv_names) == 1 else "",
     )
+
+
+def read_obj(path):
+    """Read vertices, triangles and per-corner UVs from a triangulated Wavefront OBJ file.
+
+    Reads ``v x y z``, ``vt u v`` and ``f a/ta b/tb c/tc`` lines (``a/ta/na`` too); indices are 1-based, as
+    the format has them. Every other line (normals, groups, materials, comments) is ignored, and so is a
+    third texture coordinate ``w``. Objects and groups are not told apart: all faces form one mesh.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    V : (n, 3) float64 ndarray
+        Vertex positions, in file order.
+    F : (m, 3) int64 ndarray
+        Triangles as 0-based indices into ``V``, corners in file order.
+    uv : (m, 3, 2) float64 ndarray
+        Texture coordinates of each triangle corner (``uv[i, k]`` belongs to vertex ``F[i, k]``).
+
+    Raises
+    ------
+    ValueError
+        On a face that is not a triangle, a face corner without a texture coordinate index, an index that is
+        not a positive integer or points past the ``v``/``vt`` lines, a file without faces or without ``vt``
+        lines; the message names the file (and the line where there is one).
+    """
+    positions, texcoords, corners = [], [], []
+    with open(path) as lines:
+        for number, line in enumerate(lines, 1):
+            parts = line.split()
+            if not parts:
+                continue
+            where = f"{path}, line {number}"
+            if parts[0] == "v":
+                positions.append([float(x) for x in parts[1:4]])
+                if len(positions[-1]) != 3:
+                    raise ValueError(f"{where}: a vertex needs three coordinates, got {line.strip()!r}")
+            elif parts[0] == "vt":
+                texcoords.append([float(x) for x in parts[1:3]])
+                if len(texcoords[-1]) != 2:
+                    raise ValueError(f"{where}: a texture coordinate needs u and v, got {line.strip()!r}")
+            elif parts[0] == "f":
+                if len(parts) != 4:
+                    raise ValueError(f"{where}: a face with {len(parts) - 1} corners; read_obj reads "
+                                     "triangulated OBJ files only")
+                corners.append([_obj_corner(corner, where) for corner in parts[1:]])
+    if not corners:
+        raise ValueError(f"{path}: no faces")
+    if not texcoords:
+        raise ValueError(f"{path}: no texture coordinates (vt lines); the mesh needs UVs")
+    corners = np.array(corners, dtype=np.int64) - 1  # (m, 3, 2): vertex and texture coordinate, 0-based
+    for column, count, kind in ((0, len(positions), "vertex"), (1, len(texcoords), "texture coordinate")):
+        if corners[..., column].max() >= count:
+            raise ValueError(f"{path}: a face refers to {kind} {corners[..., column].max() + 1} of {count}")
+    V = np.array(positions, dtype=np.float64).reshape(-1, 3)
+    uv = np.array(texcoords, dtype=np.float64).reshape(-1, 2)[corners[..., 1]]
+    return V, np.ascontiguousarray(corners[..., 0]), uv
+
+
+def _obj_corner(corner, where):
+    """``(vertex, texture coordinate)`` 1-based indices of one ``f`` corner ``a/ta[/na]``."""
+    ids = corner.split("/")
+    if len(ids) < 2 or not ids[1]:
+        raise ValueError(f"{where}: face corner {corner!r} has no texture coordinate index (the mesh needs UVs)")
+    try:
+        vertex, texcoord = int(ids[0]), int(ids[1])
+    except ValueError:
+        raise ValueError(f"{where}: face corner {corner!r} is not of the form a/ta[/na]") from None
+    if vertex < 1 or texcoord < 1:
+        raise ValueError(f"{where}: face corner {corner!r}: indices must be positive (relative indices are "
+                         "not supported)")
+    return vertex, texcoord
