@@ -20,33 +20,10 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))
 
 
-def read_obj(path):
-    """Minimal OBJ reader: positions, texture coordinates, triangulated faces (fan), per-corner UVs."""
-    positions, texcoords, faces, corner_uv = [], [], [], []
-    for line in pathlib.Path(path).read_text().splitlines():
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "v":
-            positions.append([float(x) for x in parts[1:4]])
-        elif parts[0] == "vt":
-            texcoords.append([float(x) for x in parts[1:3]])
-        elif parts[0] == "f":
-            corners = [c.split("/") for c in parts[1:]]
-            vi = [int(c[0]) - 1 if int(c[0]) > 0 else len(positions) + int(c[0]) for c in corners]
-            ti = [int(c[1]) - 1 if len(c) > 1 and c[1] else -1 for c in corners]
-            for k in range(1, len(corners) - 1):
-                faces.append([vi[0], vi[k], vi[k + 1]])
-                corner_uv.append([ti[0], ti[k], ti[k + 1]])
-    V = np.array(positions, dtype=np.float64)
-    F = np.array(faces, dtype=np.int64)
-    T = np.array(texcoords, dtype=np.float64)
-    uv = T[np.array(corner_uv, dtype=np.int64)]
-    return V, F, uv
-
-
 def load_model(directory):
     from skimage.io import imread
+
+    from perceptual_uv.core.mesh import read_obj
 
     directory = pathlib.Path(directory)
     obj = sorted(directory.glob("*.obj"))[0]

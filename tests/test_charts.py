@@ -4,23 +4,9 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core.charts import signed_uv_areas, uv_topology
+from perceptual_uv.core.mesh import read_obj
 
 SPOT = pathlib.Path(__file__).resolve().parent / "data" / "spot" / "spot_triangulated.obj"
-
-
-def load_obj_faces_and_uv(path):
-    """Minimal OBJ reader: triangles ``f v/vt[/vn]`` and ``vt`` lines only."""
-    texcoords, faces, face_texcoords = [], [], []
-    for line in pathlib.Path(path).read_text().splitlines():
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "vt":
-            texcoords.append([float(x) for x in parts[1:3]])
-        elif parts[0] == "f":
-            faces.append([int(p.split("/")[0]) - 1 for p in parts[1:]])
-            face_texcoords.append([int(p.split("/")[1]) - 1 for p in parts[1:]])
-    return np.array(faces, dtype=np.int64), np.array(texcoords)[np.array(face_texcoords)]
 
 
 SQUARE_F = np.array([[0, 1, 2], [0, 2, 3]])
@@ -117,7 +103,7 @@ def test_bad_input_raises_value_error(F, uv, message):
 
 
 def test_spot_has_the_documented_thirteen_charts():
-    F, uv = load_obj_faces_and_uv(SPOT)
+    _, F, uv = read_obj(SPOT)
     topo = uv_topology(F, uv)
     assert topo.n_charts == 13  # /work/shared/models/README.md
     np.testing.assert_array_equal(topo.corner_uv(), uv)

@@ -8,6 +8,7 @@ import pytest
 
 from perceptual_uv.core import loss
 from perceptual_uv.core.gmsd import luma
+from perceptual_uv.core.mesh import read_obj
 from perceptual_uv.core.one_ring import one_ring_faces
 
 SHARED = pathlib.Path(__file__).resolve().parents[1].parent / "shared"
@@ -172,26 +173,12 @@ def test_validation(textured):
         problem.evaluate([[0.0, np.nan, 1.0, 0.0]])
 
 
-def _read_obj(path):
-    positions, texcoords, corners = [], [], []
-    for line in path.read_text().splitlines():
-        parts = line.split()
-        if parts and parts[0] == "v":
-            positions.append([float(x) for x in parts[1:4]])
-        elif parts and parts[0] == "vt":
-            texcoords.append([float(x) for x in parts[1:3]])
-        elif parts and parts[0] == "f":
-            corners.append([[int(i) - 1 for i in c.split("/")[:2]] for c in parts[1:4]])
-    corners = np.array(corners)
-    return np.array(positions), corners[:, :, 0], np.array(texcoords)[corners[:, :, 1]]
-
-
 @pytest.mark.skipif(not (SHARED / "models" / "spot").is_dir(), reason="../shared/models/spot is absent")
 def test_spot_identity_and_kernel_agreement():
     from skimage.io import imread
 
     spot = SHARED / "models" / "spot"
-    V, F, uv = _read_obj(spot / "spot_triangulated.obj")
+    V, F, uv = read_obj(spot / "spot_triangulated.obj")
     texture = np.ascontiguousarray(imread(spot / "spot_texture.png")[::-1, :, :3] / 255.0)
     faces = np.random.default_rng(6).choice(len(F), 12, replace=False)
     batch = loss.prepare_triangles(V, F, uv, texture, faces)

@@ -7,6 +7,7 @@ from scipy.optimize import minimize_scalar
 
 from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import rotation
+from perceptual_uv.core.mesh import read_obj
 from perceptual_uv.core.meshwise import (_local_update_kernel, _local_update_reference,
                                          _Objective, _prepare, barrier, fit_energy, iter_solve_meshwise,
                                          local_step, solve_meshwise)
@@ -14,21 +15,6 @@ from perceptual_uv.core.meshwise import (_local_update_kernel, _local_update_ref
 HERE = pathlib.Path(__file__).resolve().parent
 SPOT = HERE / "data" / "spot" / "spot_triangulated.obj"
 SHARED_MODELS = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "models"
-
-
-def load_obj_faces_and_uv(path):
-    """Minimal OBJ reader: triangles ``f v/vt[/vn]`` and ``vt`` lines only."""
-    texcoords, faces, face_texcoords = [], [], []
-    for line in pathlib.Path(path).read_text().splitlines():
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "vt":
-            texcoords.append([float(x) for x in parts[1:3]])
-        elif parts[0] == "f":
-            faces.append([int(p.split("/")[0]) - 1 for p in parts[1:]])
-            face_texcoords.append([int(p.split("/")[1]) - 1 for p in parts[1:]])
-    return np.array(faces, dtype=np.int64), np.array(texcoords)[np.array(face_texcoords)]
 
 
 _COMPONENT = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
@@ -76,7 +62,7 @@ def random_box_targets(m, seed):
 
 @pytest.fixture(scope="module")
 def spot():
-    return load_obj_faces_and_uv(SPOT)
+    return read_obj(SPOT)[1:]
 
 
 def polar(A):
@@ -391,7 +377,7 @@ def _shared_models():
 @pytest.mark.skipif(not SHARED_MODELS.is_dir(), reason="../shared/models is not available")
 @pytest.mark.parametrize("path", _shared_models(), ids=lambda p: p.parent.name)
 def test_no_flips_on_shared_models_with_random_box_targets(path):
-    F, uv = load_gltf_faces_and_uv(path) if path.suffix == ".gltf" else load_obj_faces_and_uv(path)
+    F, uv = load_gltf_faces_and_uv(path) if path.suffix == ".gltf" else read_obj(path)[1:]
     params, w_R, w_S = random_box_targets(len(F), seed=0)
     result = solve_meshwise(F, uv, params, w_R, w_S, max_iterations=30)
     assert result.flipped == 0

@@ -8,6 +8,7 @@ import pytest
 from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.evaluation import _triangle_frames
+from perceptual_uv.core.mesh import read_obj
 from perceptual_uv.core.ssp import expected_stretch, signal_metric_tensors, solve_ssp, ssp_energy, ssp_targets
 
 TRIANGLE = np.array([[[0.2, 0.2], [0.8, 0.2], [0.3, 0.9]]])
@@ -253,23 +254,11 @@ SPOT = pathlib.Path(__file__).resolve().parent / "data" / "spot"
 
 
 def _load_spot():
-    """Minimal OBJ reader (v, vt, triangles ``f v/vt``) and the PNG texture with row 0 at the bottom."""
+    """The spot mesh (:func:`core.mesh.read_obj`) and its PNG texture with row 0 at the bottom."""
     matplotlib_image = pytest.importorskip("matplotlib.image")
-    positions, texcoords, faces, face_texcoords = [], [], [], []
-    for line in (SPOT / "spot_triangulated.obj").read_text().splitlines():
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "v":
-            positions.append([float(x) for x in parts[1:4]])
-        elif parts[0] == "vt":
-            texcoords.append([float(x) for x in parts[1:3]])
-        elif parts[0] == "f":
-            faces.append([int(p.split("/")[0]) - 1 for p in parts[1:]])
-            face_texcoords.append([int(p.split("/")[1]) - 1 for p in parts[1:]])
+    V, F, uv = read_obj(SPOT / "spot_triangulated.obj")
     texture = matplotlib_image.imread(SPOT / "spot_texture.png")[::-1]
-    return (np.array(positions), np.array(faces, dtype=np.int64), np.array(texcoords)[np.array(face_texcoords)],
-            np.ascontiguousarray(texture[..., :3], dtype=np.float64))
+    return V, F, uv, np.ascontiguousarray(texture[..., :3], dtype=np.float64)
 
 
 @pytest.mark.slow
