@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .mesh import check_mesh
+
 __all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "TriangleCameras", "triangle_cameras"]
 
 #: Distance of the eye from the barycentre along ``N`` (Algorithm 1, line 7).
@@ -134,14 +136,7 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
     ----------
     Sun et al. 2022, App. A, Algorithm 1.
     """
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F must be an integer array of shape (m, 3), got {F.dtype} {F.shape}")
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        raise ValueError("F refers to vertices outside V")
+    V, F = check_mesh(V, F)
     if int(screen_pixels) != screen_pixels or screen_pixels < 1:
         raise ValueError(f"screen_pixels must be a positive integer, got {screen_pixels}")
     faces = np.arange(len(F)) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)

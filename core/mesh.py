@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["MeshArrays", "validate_mesh_arrays", "concatenate_meshes", "read_obj"]
+__all__ = ["MeshArrays", "validate_mesh_arrays", "check_mesh", "concatenate_meshes", "read_obj"]
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -102,6 +102,39 @@ def validate_mesh_arrays(mesh):
         raise ValueError(f"F indexes vertices outside [0, {mesh.V.shape[0]})")
     if m and (mesh.object_index.min() < 0 or mesh.object_index.max() >= max(len(mesh.object_names), 1)):
         raise ValueError("object_index points outside object_names")
+
+
+def check_mesh(V, F):
+    """Check and convert the vertex and triangle arrays of a mesh given as plain arrays.
+
+    Parameters
+    ----------
+    V : (n, 3) array_like of float
+        Vertex positions.
+    F : (m, 3) array_like of int
+        Triangles as vertex indices into ``V``; ``m = 0`` passes.
+
+    Returns
+    -------
+    V : (n, 3) float64 ndarray, C-contiguous
+    F : (m, 3) int64 ndarray, C-contiguous
+
+    Raises
+    ------
+    ValueError
+        On wrong shapes, a non-integer ``F`` or indices outside ``[0, n)``. Values of ``V`` are not checked
+        (callers that need finite positions test that themselves).
+    """
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        raise ValueError(f"F must be an integer array of shape (m, 3), got {F.dtype} {F.shape}")
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        raise ValueError("F refers to vertices outside V")
+    return V, F
 
 
 def concatenate_meshes(meshes):

@@ -20,6 +20,7 @@ import numpy as np
 
 from ._jit import njit
 from .camera import CLIP_FAR, CLIP_NEAR, EYE_DISTANCE, TriangleCameras
+from .mesh import check_mesh  # re-exported: loss and trianglewise import it from here
 
 __all__ = ["Raster", "check_mesh", "rasterize", "texel_coordinates", "bilinear_weights", "sample_bilinear",
            "deform_points", "screen_operator"]
@@ -146,20 +147,6 @@ def _rasterize_reference(V, F, draw, camera):
         bary[wins] = np.stack([b0, b1, b2], axis=1)[wins]
     hit = np.flatnonzero(face >= 0)
     return Raster(hit, face[hit], bary[hit], n)
-
-
-def check_mesh(V, F):
-    """``V`` as contiguous (n, 3) float64 and ``F`` as contiguous (m, 3) int64 indices into it, or ValueError."""
-    V = np.ascontiguousarray(V, dtype=np.float64)
-    F = np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F must be an integer array of shape (m, 3), got {F.dtype} {F.shape}")
-    F = np.ascontiguousarray(F, dtype=np.int64)
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        raise ValueError("F refers to vertices outside V")
-    return V, F
 
 
 def rasterize(V, F, draw, camera):
