@@ -57,6 +57,7 @@ import numpy as np
 
 from .charts import uv_topology, validate_faces_and_uv
 from .evaluation import _triangle_frames
+from .mesh import check_mesh
 
 __all__ = ["signal_metric_tensors", "expected_stretch", "ssp_energy", "SSPResult", "solve_ssp", "ssp_targets"]
 
@@ -65,14 +66,11 @@ _MAX_POINTS_PER_CHUNK = 1 << 20
 
 
 def _check_mesh(V, F, uv):
-    V = np.asarray(V, dtype=np.float64)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V must have shape (n, 3), got {V.shape}")
+    """:func:`.mesh.check_mesh` (shapes, index range), finite ``V``, and :func:`.charts.validate_faces_and_uv`."""
+    V, F = check_mesh(V, F)
     if not np.all(np.isfinite(V)):
         raise ValueError("V holds NaN or infinite coordinates")
     F, uv = validate_faces_and_uv(F, uv)
-    if F.max() >= V.shape[0]:
-        raise ValueError(f"F indexes vertices outside [0, {V.shape[0]})")
     return V, F, uv
 
 
