@@ -14,6 +14,7 @@ import time
 import bpy
 import numpy as np
 
+from ..core.loss import texture_luma
 from ..core.meshwise import solve_meshwise
 from ..core.ssp import solve_ssp, ssp_targets
 from ..core.trianglewise import optimize_triangles
@@ -144,8 +145,7 @@ def sspop_uv(objects, *, source_uv, name="SSPOP"):
 def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=64, workers=1, seed=0):
     """The triangle-wise stage (Sec. 4.1) on the objects: its result and its time (s), reusable across ablations."""
     V, F, uv = mesh_arrays(objects, source_uv)
-    texture = _texture(objects)
-    luma = texture[..., :3] @ np.array([0.299, 0.587, 0.114]) if texture.ndim == 3 else texture
+    luma = texture_luma(_texture(objects))
     start = time.perf_counter()
     result = optimize_triangles(V, F, uv, luma, epsilon=epsilon, evaluations=evaluations,
                                 screen_pixels=screen_pixels, workers=workers, seed=seed)
