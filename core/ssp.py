@@ -74,6 +74,29 @@ def _check_mesh(V, F, uv):
     return V, F, uv
 
 
+def _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, caller):
+    """Checked mesh, its surface frames and the blended metric (``caller`` names the function in errors).
+
+    Returns
+    -------
+    V, F, uv
+        As from :func:`_check_mesh`.
+    X : (m, 2, 2) float64 ndarray
+    area : (m,) float64 ndarray
+        Surface edge matrices in each triangle's plane, and areas (:func:`.evaluation._triangle_frames`).
+    metric : (m, 2, 2) float64 ndarray
+        ``metric`` (or :func:`signal_metric_tensors` of ``texture``) blended by :func:`_regularized`.
+    """
+    V, F, uv = _check_mesh(V, F, uv)
+    X, area = _triangle_frames(V, F)
+    if metric is None:
+        if texture is None:
+            raise ValueError(f"{caller} needs a texture or a precomputed metric")
+        metric = signal_metric_tensors(V, F, uv, texture, channels=channels)
+    metric = _regularized(_check_metric(metric, F.shape[0]), area, geometric_weight)
+    return V, F, uv, X, area, metric
+
+
 def _texture_channels(texture, channels):
     texture = np.asarray(texture, dtype=np.float64)
     if texture.ndim not in (2, 3) or texture.shape[0] < 2 or texture.shape[1] < 2:
@@ -427,14 +450,8 @@ def solve_ssp(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, cha
     Sander et al. 2002 (energy); Liu and Nocedal 1989 (L-BFGS); Smith and Schaefer 2015 (flip-free step
     bound).
     """
-    V, F, uv = _check_mesh(V, F, uv)
+    V, F, uv, X, area, metric = _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, "solve_ssp")
     m = F.shape[0]
-    X, area = _triangle_frames(V, F)
-    if metric is None:
-        if texture is None:
-            raise ValueError("solve_ssp needs a texture or a precomputed metric")
-        metric = signal_metric_tensors(V, F, uv, texture, channels=channels)
-    metric = _regularized(_check_metric(metric, m), area, geometric_weight)
     if int(max_iterations) < 1 or int(history_size) < 1:
         raise ValueError("max_iterations and history_size must be at least 1")
     if not tol >= 0:
@@ -601,14 +618,8 @@ def ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, c
     ----------
     Sun et al. 2022, Sec. 5.2.2 (SSPOP), Eq. 16-19; Sander et al. 2002.
     """
-    V, F, uv = _check_mesh(V, F, uv)
+    V, F, uv, X, area, metric = _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, "ssp_targets")
     m = F.shape[0]
-    X, area = _triangle_frames(V, F)
-    if metric is None:
-        if texture is None:
-            raise ValueError("ssp_targets needs a texture or a precomputed metric")
-        metric = signal_metric_tensors(V, F, uv, texture, channels=channels)
-    metric = _regularized(_check_metric(metric, m), area, geometric_weight)
     U_in = _uv_edges(uv)
     det_in = _det(U_in)
     longest2 = np.max([((uv[:, (j + 1) % 3] - uv[:, j]) ** 2).sum(axis=1) for j in range(3)], axis=0)
