@@ -8,6 +8,7 @@ from scipy.optimize import minimize_scalar
 from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import rotation
 from perceptual_uv.core.mesh import read_obj
+from perceptual_uv.core.progress import run_generator
 from perceptual_uv.core.meshwise import (_local_update_kernel, _local_update_reference,
                                          _Objective, _prepare, barrier, fit_energy, iter_solve_meshwise,
                                          local_step, solve_meshwise)
@@ -110,13 +111,18 @@ def test_local_step_without_fit_weights_recovers_polar_factors():
     np.testing.assert_allclose(energy, 0.0, atol=1e-15)
 
 
+def _random_local_problem(rng, m, *, shift):
+    """Random Jacobians ``J`` (``shift * I`` added), target rotations ``R_bar`` and SPD targets ``S_bar``."""
+    J = rng.normal(size=(m, 2, 2)) + shift * np.eye(2)
+    R_bar = rotation(rng.uniform(0, 2 * np.pi, m))
+    A = rng.normal(size=(m, 2, 2))
+    return J, R_bar, A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(2)
+
+
 def test_local_step_theta_and_stretch_minimize_their_blocks():
     rng = np.random.default_rng(1)
     m = 5
-    J = rng.normal(size=(m, 2, 2)) + 2 * np.eye(2)
-    R_bar = rotation(rng.uniform(0, 2 * np.pi, m))
-    A = rng.normal(size=(m, 2, 2))
-    S_bar = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(2)
+    J, R_bar, S_bar = _random_local_problem(rng, m, shift=2.0)
     S_prev = S_bar + 0.05
     w_R, w_S, w_rs = rng.uniform(0.1, 2, m), rng.uniform(0.1, 2, m), 0.7
     k, R, S, energy = local_step(J, R_bar, S_bar, w_R, w_S, w_rs, S_prev)
@@ -154,10 +160,7 @@ def test_local_step_theta_and_stretch_minimize_their_blocks():
 def test_local_update_kernel_matches_numpy_reference():
     rng = np.random.default_rng(7)
     m = 200
-    J = rng.normal(size=(m, 2, 2)) + 1.5 * np.eye(2)
-    R_bar = rotation(rng.uniform(0, 2 * np.pi, m))
-    A = rng.normal(size=(m, 2, 2))
-    S_bar = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(2)
+    J, R_bar, S_bar = _random_local_problem(rng, m, shift=1.5)
     w_R, w_S = rng.uniform(0, 2, m), rng.uniform(0, 2, m)
     w_R[:20] = w_S[:20] = 0.0  # flat texture: no fit weight
     k = rng.integers(0, 4, m)
@@ -242,12 +245,7 @@ def test_generator_yields_progress_and_returns_the_result():
     params = np.tile([0.2, 0.5, 0.8, 0.3], (2, 1))
     generator = iter_solve_meshwise(SQUARE_F, SQUARE_UV, params, weights="identity", max_iterations=5)
     steps = []
-    while True:
-        try:
-            steps.append(next(generator))
-        except StopIteration as finished:
-            result = finished.value
-            break
+    result = run_generator(generator, lambda *step: steps.append(step))
     assert steps == [(i, 5) for i in range(1, result.iterations + 1)]
     calls = []
     solve_meshwise(SQUARE_F, SQUARE_UV, params, weights="identity", max_iterations=5,

@@ -12,6 +12,7 @@ import pytest
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.loss import triangle_problem
+from perceptual_uv.core.progress import run_generator
 
 def grid_mesh(cells=6, uv_low=0.25, uv_high=0.75):
     """Flat square of ``2 cells^2`` triangles in z = 0, UVs an axis-aligned square of the texture."""
@@ -213,12 +214,7 @@ def test_iter_optimize_triangles_yields_progress_then_result():
     V, F, uv = grid_mesh(cells=2)
     stage = tw.iter_optimize_triangles(V, F, uv, _smooth_texture(), evaluations=10, workers=1, chunk_size=3)
     progress = []
-    while True:
-        try:
-            progress.append(next(stage))
-        except StopIteration as finished:
-            result = finished.value
-            break
+    result = run_generator(stage, lambda *step: progress.append(step))
     assert progress == [(0, 8), (3, 8), (6, 8), (8, 8)]
     assert result.params.shape == (8, 4) and result.evaluations.shape == (8,)
     calls = []
