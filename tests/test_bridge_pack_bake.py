@@ -1,4 +1,4 @@
-"""Packing with cardinal rotations only, and the Cycles bake between UV maps, on hand-made meshes."""
+"""Packing with cardinal rotations only, and the Cycles bake between UV maps, on hand-made meshes and spot."""
 import numpy as np
 import pytest
 
@@ -126,3 +126,106 @@ def test_bake_leaves_scene_and_data_untouched():
     np.testing.assert_array_equal(again, pixels)
     assert source.colorspace_settings.name == "sRGB"
     assert obj.material_slots[0].material.name == "textured"
+
+
+def texel_centres_inside(triangle, resolution, *, eps=1e-3):
+    """(rows, columns) of the texels whose centres lie strictly inside ``triangle`` ((3, 2) UVs, any tile)."""
+    low = np.floor(triangle.min(axis=0) * resolution - 0.5).astype(int)
+    high = np.ceil(triangle.max(axis=0) * resolution - 0.5).astype(int)
+    columns, rows = np.meshgrid(np.arange(low[0], high[0] + 1), np.arange(low[1], high[1] + 1))
+    centres = (np.stack([columns.ravel(), rows.ravel()], axis=1) + 0.5) / resolution
+    def cross(p, q):
+        return p[..., 0] * q[..., 1] - p[..., 1] * q[..., 0]
+
+    a, b, c = triangle
+    area = cross(b - a, c - a)
+    weights = np.stack([cross(c - b, centres - b), cross(a - c, centres - c), cross(b - a, centres - a)])
+    inside = (weights / area > eps).all(axis=0) if area else np.zeros(len(centres), dtype=bool)
+    return rows.ravel()[inside], columns.ravel()[inside]
+
+
+def test_bake_writes_the_parts_of_spot_outside_the_unit_square_to_their_wrapped_texels(spot_obj):
+    from perceptual_uv.bridge.material import base_color_image_node
+    from perceptual_uv.bridge.mesh_io import import_model
+
+    import_model(spot_obj)
+    obj = next(obj for obj in bpy.context.scene.objects if obj.type == "MESH")
+    uv_name = obj.data.uv_layers.active.name
+    source = base_color_image_node(obj.material_slots[0].material).image
+    resolution = source.size[0]
+    mesh = obj.data
+    mesh.calc_loop_triangles()
+    loops = np.empty(3 * len(mesh.loop_triangles), dtype=np.int64)
+    mesh.loop_triangles.foreach_get("loops", loops)
+    uv = np.empty(2 * len(mesh.loops))
+    mesh.uv_layers[uv_name].uv.foreach_get("vector", uv)
+    triangles = uv.reshape(-1, 2)[loops].reshape(-1, 3, 2)
+    outside = (triangles.min(axis=(1, 2)) < 0) | (triangles.max(axis=(1, 2)) > 1)
+    assert outside.sum() == 10  # spot: u down to -0.052, v up to 1.001
+
+    # Where the triangles outside [0, 1]^2 land after wrapping (REPEAT), and which of those texels no triangle
+    # covers in the unit square itself: without the tiles the bake left those at background.
+    wrapped = np.zeros((resolution, resolution), dtype=bool)
+    for triangle in triangles[outside]:
+        rows, columns = texel_centres_inside(triangle, resolution)
+        wrapped[rows % resolution, columns % resolution] = True
+    unit = np.zeros_like(wrapped)  # generous at the edges, so only_wrapped errs towards fewer texels
+    for triangle in triangles:
+        rows, columns = texel_centres_inside(triangle, resolution, eps=-1e-3)
+        keep = (rows >= 0) & (rows < resolution) & (columns >= 0) & (columns < resolution)
+        unit[rows[keep], columns[keep]] = True
+    only_wrapped = wrapped & ~unit
+    assert only_wrapped.sum() > 500  # measured: 678 of the 2251 wrapped texels
+
+    image = bake_base_color([obj], source_uv=uv_name, target_uv=uv_name, resolution=resolution, margin=2,
+                            image_name="rebaked")
+    baked = np.empty(resolution * resolution * 4, dtype=np.float32)
+    image.pixels.foreach_get(baked)
+    texture = np.empty(len(source.pixels), dtype=np.float32)
+    source.pixels.foreach_get(texture)
+    baked, texture = baked.reshape(resolution, resolution, 4), texture.reshape(resolution, resolution, -1)
+    # Re-baking a map onto itself reads every texel centre back from the same source texel centre.
+    assert texture[only_wrapped, :3].mean() > 0.2  # not black there, so background would fail the check
+    np.testing.assert_allclose(baked[wrapped, :3], texture[wrapped, :3], atol=ONE_STEP)
+    assert obj.data.uv_layers.keys() == [uv_name]
+
+
+def test_bake_of_a_quad_in_tile_1_1_equals_the_same_quad_in_tile_0_0():
+    rng = np.random.default_rng(3)
+    texture = checker_texture(8)
+    texture[..., 3] = rng.integers(64, 256, (8, 8)) / 255.0  # alpha < 1: the alpha bake goes through tiles too
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    obj = textured_quads([square], texture)
+    inner = 0.25 + 0.5 * square
+    for name, corners in (("Inside", inner), ("Shifted", inner + 1.0)):
+        obj.data.uv_layers.new(name=name).uv.foreach_set("vector", corners.ravel())
+    shifted = read_uv(obj, "Shifted")
+    counts = {name: len(getattr(bpy.data, name)) for name in ("objects", "meshes", "materials", "images", "scenes")}
+
+    def bake(name, margin):
+        image = bake_base_color([obj], source_uv="UVMap", target_uv=name, resolution=16, margin=margin,
+                                image_name=name)
+        pixels = np.empty(16 * 16 * 4, dtype=np.float32)
+        image.pixels.foreach_get(pixels)
+        return pixels.reshape(16, 16, 4)
+
+    inside, moved = bake("Inside", 0), bake("Shifted", 0)
+    # the quad covers texels 4..11 in both directions
+    assert inside[4:12, 4:12, :3].max() > 0.5 and inside[4:12, 4:12, 3].min() < 1.0
+    np.testing.assert_array_equal(moved, inside)
+
+    # With a margin the covered texels stay the same; the margin is filled on the same ring but not with the
+    # same values (Cycles' EXTEND averages neighbours, the tiles take the nearest covered texel).
+    inside, moved = bake("Inside", 2), bake("Shifted", 2)
+    np.testing.assert_array_equal(moved[4:12, 4:12], inside[4:12, 4:12])
+    ring = np.zeros((16, 16), dtype=bool)
+    ring[2:14, 4:12] = ring[4:12, 2:14] = True
+    ring[4:12, 4:12] = False
+    assert (inside[ring, 3] > 0).all() and (moved[ring, 3] > 0).all()
+    np.testing.assert_array_equal(moved[4:12, 2], moved[4:12, 4])
+    np.testing.assert_array_equal(moved[[0, 1, 14, 15]], inside[[0, 1, 14, 15]])  # background beyond
+
+    after = {name: len(getattr(bpy.data, name)) for name in counts}
+    assert after == dict(counts, images=counts["images"] + 4)
+    np.testing.assert_array_equal(read_uv(obj, "Shifted"), shifted)
+    assert obj.data.uv_layers.keys() == ["UVMap", "Inside", "Shifted"]
