@@ -111,12 +111,14 @@ def _has_alpha(image):
     return bool(pixels[3::4].min() < 1.0)
 
 
-def _touched_tiles(objects, target_uv):
-    """Integer tiles (floor u, floor v) whose open interior the polygons' target-UV bounding boxes overlap.
+def _touched_tiles(objects, target_uv, resolution):
+    """Integer tiles (floor u, floor v) holding texel centres inside the polygons' target-UV bounding boxes.
 
-    A box edge on an integer line does not count (a unit-square map touches only tile (0, 0)): texels of the
-    tile beyond it have centres strictly inside, so such a polygon covers none of them.
+    Counting centres, not areas, keeps a unit-square map (or one a float step past 1) on tile (0, 0) alone: the
+    centres of tile t lie in [t + 0.5 / r, t + 1 - 0.5 / r], so a box reaching less than half a texel into a
+    tile cannot cover any of them.
     """
+    half = 0.5 / resolution
     tiles = set()
     for obj in objects:
         mesh = obj.data
@@ -127,8 +129,8 @@ def _touched_tiles(objects, target_uv):
         uv = uv.reshape(-1, 2)
         starts = np.empty(len(mesh.polygons), dtype=np.int64)
         mesh.polygons.foreach_get("loop_start", starts)
-        low = np.floor(np.minimum.reduceat(uv, starts))
-        high = np.ceil(np.maximum.reduceat(uv, starts)) - 1
+        low = np.ceil(np.minimum.reduceat(uv, starts) + half) - 1
+        high = np.floor(np.maximum.reduceat(uv, starts) - half)
         finite = np.isfinite(low).all(axis=1) & np.isfinite(high).all(axis=1)
         low, high = low[finite].astype(np.int64), high[finite].astype(np.int64)
         single = (low == high).all(axis=1)
@@ -275,7 +277,7 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
             if name not in obj.data.uv_layers:
                 raise ValueError(f"'{obj.name}' has no UV map '{name}'")
     common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=margin,
-                  tiles=_touched_tiles(objects, target_uv))
+                  tiles=_touched_tiles(objects, target_uv, resolution))
     pixels = _bake_channel(objects, channel="COLOR", **common)
     use_alpha = any(_has_alpha(image) for obj in objects for image, _ in _slot_sources(obj))
     if use_alpha:
