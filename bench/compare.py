@@ -1,12 +1,16 @@
-"""Compare UV maps by the paper's Sec. 5.1 evaluation: q_r-c_r plots, q_r / E_iso tables, a Table-1 style table,
-and render crops at c_r = 0.3 (input vs ours).
+"""Compare UV maps by the paper's Sec. 5.1 evaluation: q_r-c_r plots, q_r / E_iso tables, a Table-1 style summary,
+the pixel saving of ours, and render crops at c_r = 0.3 (input vs ours).
 
-Usage (from /work)::
+Usage (from /work, the repo's parent folder)::
 
-    main/.venv/bin/python -m perceptual_uv.bench.compare --models DIR_OR_FILE... --costs 0.1,0.2,0.3,0.5 \\
-        --out main/docs/results --evaluations 30 [--methods input,repacked,...] [--screen 512]
+    main/.venv/bin/python -m perceptual_uv.bench.compare --models shared/models --costs 0.1,0.2,0.3,0.5 \\
+        --out main/docs/results [--evaluations 100] [--epsilons 0.005,0.02] [--methods input,repacked,...] \\
+        [--screen 512] [--workers 0]
+    main/.venv/bin/python -m perceptual_uv.bench.compare --summary main/docs/results
 
-Every q is reported with its screen size (20 dodecahedron views).
+Per model: ``<model>_q_vs_c.png``, ``<model>.md``, ``<model>.json`` and ``<model>_crops_c030.png``;
+``--summary`` rebuilds ``summary.md`` from every ``<model>.json`` in the folder. Every q is reported with its
+screen size (20 dodecahedron views).
 """
 
 import argparse
@@ -19,7 +23,11 @@ import numpy as np
 
 METHODS = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSP", "SSPOP", "ours",
            "ours_common", "ours_identity")
+BASELINES = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSPOP")
+"""The methods the issue's target says ours must beat at c_r = 0.2, 0.3 and 0.5."""
 MODEL_SUFFIXES = (".glb", ".gltf", ".obj", ".blend")
+SAVING_REFERENCE_COST = 0.5
+WIN_COSTS = (0.2, 0.3, 0.5)
 
 
 def _models(paths):
@@ -32,21 +40,23 @@ def _models(paths):
     return out
 
 
-def compare_model(path, *, costs, methods, evaluations, screen, epsilon, out):
-    import bpy
+def _epsilon_method(epsilon):
+    return f"ours_eps{epsilon:g}"
 
+
+def _make_uv_maps(objects, source, methods, *, evaluations, epsilon, epsilons, workers):
+    """Adds one UV map per method; returns ({method: uv name}, times in s)."""
     from ..bridge import baselines
-    from ..bridge.evaluate import evaluate_uv_map, render_views
-    from ..bridge.mesh_io import import_model
 
-    import_model(path)
-    objects = [o for o in bpy.context.scene.objects if o.type == "MESH" and o.data.uv_layers]
-    source = objects[0].data.uv_layers.active.name
-    faces = sum(len(o.data.polygons) for o in objects)
-    verts = sum(len(o.data.vertices) for o in objects)
-    times, names = {}, {}
-    triangles = None
-    for method in methods:
+    times, names, triangles = {}, {}, {}
+
+    def targets(eps):
+        if eps not in triangles:
+            triangles[eps], times[f"triangle_eps{eps:g}"] = baselines.triangle_targets(
+                objects, source_uv=source, epsilon=eps, evaluations=evaluations, workers=workers)
+        return triangles[eps]
+
+    for method in list(methods) + [_epsilon_method(e) for e in epsilons]:
         start = time.perf_counter()
         if method == "input":
             names[method] = source
@@ -62,17 +72,75 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, out):
         elif method == "SSPOP":
             baselines.sspop_uv(objects, source_uv=source)
             names[method] = "SSPOP"
-        elif method.startswith("ours"):
-            if triangles is None:
-                triangles, times["triangle"] = baselines.triangle_targets(
-                    objects, source_uv=source, epsilon=epsilon, evaluations=evaluations)
-            kw = {"ours": {}, "ours_common": {"formulation": "common"},
-                  "ours_identity": {"weights": "identity"}}[method]
-            t = baselines.perceptual_uv(objects, source_uv=source, triangles=triangles, name=method, **kw)
+        else:
+            eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else epsilon
+            kw = {"ours_common": {"formulation": "common"}, "ours_identity": {"weights": "identity"}}.get(method, {})
+            t = baselines.perceptual_uv(objects, source_uv=source, triangles=targets(eps), name=method, **kw)
             if method == "ours":
                 times["mesh"] = t["mesh"]
             names[method] = method
         times[method] = time.perf_counter() - start
+    if epsilon in triangles:
+        times["triangle"] = times[f"triangle_eps{epsilon:g}"]
+    return names, times
+
+
+def _pixel_saving(objects, source, names, results, reference, screen):
+    """Relative cost at which ours reaches the input's q_r at c_r = 0.5; extends ours' curve downwards until it
+    crosses (at most to c_r = 1/32), so the answer is a measured crossing, not a bound."""
+    from ..bridge.evaluate import evaluate_uv_map
+    from ..core.evaluation import pixel_saving
+
+    if "input" not in results or "ours" not in results:
+        return None
+    target = [p["q"] for p in results["input"]["points"] if p["target_cost"] == SAVING_REFERENCE_COST]
+    if not target:
+        return None
+    points = results["ours"]["points"]
+    while True:
+        saving = pixel_saving([p["relative_cost"] for p in points], [p["q"] for p in points], target[0],
+                              reference_cost=SAVING_REFERENCE_COST)
+        lowest = min(p["target_cost"] for p in points)
+        if saving.bracketed != "below" or lowest <= 1 / 32:
+            break
+        extra = evaluate_uv_map(objects, names["ours"], reference_uv=source, costs=(lowest / 2,),
+                                screen_pixels=screen, reference_views=reference)
+        points.append(extra["points"][0])
+        points.sort(key=lambda p: p["target_cost"])
+    return dict(input_q=target[0], relative_cost=saving.relative_cost, pixel_fraction=saving.pixel_fraction,
+                position=saving.bracketed)
+
+
+def _wins(results, costs=WIN_COSTS):
+    """For each cost in ``costs``: the baselines whose q_r is not above ours (empty = ours is best)."""
+    if "ours" not in results:
+        return {}
+    ours = {p["target_cost"]: p["q"] for p in results["ours"]["points"]}
+    losses = {}
+    for c in costs:
+        if c not in ours:
+            continue
+        losses[str(c)] = [m for m in BASELINES if m in results and any(
+            p["target_cost"] == c and p["q"] <= ours[c] for p in results[m]["points"])]
+    return losses
+
+
+def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilons, workers, out):
+    """Runs every method on one model file and writes its plot, crops, markdown table and JSON; returns the table."""
+    import bpy
+
+    from ..bridge.evaluate import evaluate_uv_map, mesh_arrays, reference_resolution, render_views
+    from ..bridge.mesh_io import import_model
+    from ..core.cost import texel_cost
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    import_model(path)
+    objects = [o for o in bpy.context.scene.objects if o.type == "MESH" and o.data.uv_layers]
+    source = objects[0].data.uv_layers.active.name
+    V, F, uv = mesh_arrays(objects, source)
+    r_input = reference_resolution(objects)
+    names, times = _make_uv_maps(objects, source, methods, evaluations=evaluations, epsilon=epsilon,
+                                 epsilons=epsilons, workers=workers)
     reference = render_views(objects, uv_name=source, screen_pixels=screen)
     results = {}
     for method, uv_name in names.items():
@@ -80,22 +148,88 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, out):
                                           reference_views=reference)
         print(f"{path.stem} {method}: " + ", ".join(f"c {p['relative_cost']:.3f} q {p['q']:.4g}"
                                                      for p in results[method]["points"]), flush=True)
+    saving = _pixel_saving(objects, source, names, results, reference, screen)
     stem = path.stem
+    table = dict(model=stem, vertices=len(V), faces=len(F), input_resolution=r_input,
+                 input_cost=float(texel_cost(uv, r_input)), epsilon=epsilon, evaluations=evaluations,
+                 screen_pixels=screen, t_triangle=times.get("triangle"), t_mesh=times.get("mesh"),
+                 pixel_saving=saving, beaten_by=_wins(results))
     _plot(results, out / f"{stem}_q_vs_c.png", stem, screen)
     _crops(objects, names, source, reference, out / f"{stem}_crops_c030.png", screen)
-    r_in = results[methods[0]]["reference_resolution"]
-    lines = [f"## {stem}", "",
-             f"#V {verts} / #F {faces}, input r {r_in}, epsilon {epsilon}, {evaluations} evaluations per triangle, "
-             f"t_triangle {times.get('triangle', float('nan')):.1f} s / t_mesh {times.get('mesh', float('nan')):.1f} s, "
-             f"q at {screen} px (20 views)", "",
+    (out / f"{stem}.md").write_text(_model_markdown(table, results, costs))
+    (out / f"{stem}.json").write_text(json.dumps({"table": table, "times_s": times, "results": results}, indent=1))
+    return (out / f"{stem}.md").read_text()
+
+
+def _fmt_time(t):
+    return "-" if t is None else f"{t:.1f} s"
+
+
+def _model_markdown(table, results, costs):
+    lines = [f"## {table['model']}", "",
+             f"#V {table['vertices']} / #F {table['faces']}, input r {table['input_resolution']}, c_input "
+             f"{table['input_cost']:.0f}, epsilon {table['epsilon']}, {table['evaluations']} evaluations per "
+             f"triangle, t_triangle {_fmt_time(table['t_triangle'])} / t_mesh {_fmt_time(table['t_mesh'])}, "
+             f"q at {table['screen_pixels']} px (20 views)", "",
              "| method | " + " | ".join(f"q @ c_r={c}" for c in costs) + " | E_iso |",
              "|---" * (len(costs) + 2) + "|"]
     for method, res in results.items():
-        lines.append(f"| {method} | " + " | ".join(f"{p['q']:.4g} (r {p['resolution']})" for p in res["points"])
-                     + f" | {res['e_iso']:.4g} |")
-    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
-    (out / f"{stem}.json").write_text(json.dumps({"times_s": times, "results": results}, indent=1))
+        by_cost = {p["target_cost"]: p for p in res["points"]}
+        lines.append(f"| {method} | " + " | ".join(f"{by_cost[c]['q']:.4g} (r {by_cost[c]['resolution']})"
+                                                   for c in costs) + f" | {res['e_iso']:.4g} |")
+    saving = table["pixel_saving"]
+    if saving:
+        lines += ["", f"Pixel saving: ours reaches the input's q_r at c_r = {SAVING_REFERENCE_COST} "
+                      f"({saving['input_q']:.4g}) at c_r = {saving['relative_cost']:.3f} ({saving['position']})."]
+    for c, beaten in table["beaten_by"].items():
+        lines.append(f"At c_r = {c}: " + ("ours has the lowest q_r." if not beaten else
+                                           f"ours is NOT below {', '.join(beaten)}."))
+    return "\n".join(lines) + "\n"
+
+
+def write_summary(folder):
+    """``summary.md`` in ``folder``: a Table-1 style table and the pixel saving of every ``<model>.json``."""
+    folder = pathlib.Path(folder)
+    rows = []
+    for file in sorted(folder.glob("*.json")):
+        data = json.loads(file.read_text())
+        if "table" in data:
+            rows.append(data)
+    lines = ["# Summary of the comparisons", "",
+             "Generated by `python -m perceptual_uv.bench.compare --summary` from the per-model JSON files.", "",
+             "| model | #V / #F | r | c_input | t_triangle / t_mesh | q_r@0.3 input | q_r@0.3 best baseline | "
+             "q_r@0.3 ours | c_r where ours = input@0.5 | ours lowest at 0.2 / 0.3 / 0.5 |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    fractions = []
+    for data in rows:
+        t, results = data["table"], data["results"]
+        q03 = {m: next((p["q"] for p in r["points"] if p["target_cost"] == 0.3), None) for m, r in results.items()}
+        baseline = min(((q03[m], m) for m in BASELINES if m != "input" and q03.get(m) is not None), default=None)
+        saving = t["pixel_saving"]
+        if saving and saving["position"] != "above":
+            fractions.append(saving["relative_cost"])
+        wins = " / ".join("yes" if not t["beaten_by"].get(str(c)) else "no: " + ", ".join(t["beaten_by"][str(c)])
+                          for c in WIN_COSTS if str(c) in t["beaten_by"])
+        lines.append(
+            f"| {t['model']} | {t['vertices']} / {t['faces']} | {t['input_resolution']} | {t['input_cost']:.0f} | "
+            f"{_fmt_time(t['t_triangle'])} / {_fmt_time(t['t_mesh'])} | {_q(q03.get('input'))} | "
+            f"{'-' if baseline is None else f'{baseline[0]:.3g} ({baseline[1]})'} | {_q(q03.get('ours'))} | "
+            f"{'-' if not saving else _saving_text(saving)} | {wins or '-'} |")
+    if fractions:
+        lines += ["", f"Mean relative cost at which ours matches the input's q_r at c_r = 0.5: "
+                      f"{np.mean(fractions):.3f} over {len(fractions)} models (target <= 0.25)."]
+    (folder / "summary.md").write_text("\n".join(lines) + "\n")
     return "\n".join(lines)
+
+
+def _q(value):
+    return "-" if value is None else f"{value:.3g}"
+
+
+def _saving_text(saving):
+    if saving["position"] == "above":
+        return "not reached"
+    return f"{saving['relative_cost']:.3f}" + (" (bound)" if saving["position"] == "below" else "")
 
 
 def _plot(results, file, title, screen):
@@ -106,13 +240,14 @@ def _plot(results, file, title, screen):
 
     fig, ax = plt.subplots(figsize=(5, 3.5), dpi=90)
     for method, res in results.items():
-        ax.plot([p["relative_cost"] for p in res["points"]], [p["q"] for p in res["points"]], "o-", label=method,
-                lw=2 if method == "ours" else 1)
+        points = sorted(res["points"], key=lambda p: p["relative_cost"])
+        ax.plot([p["relative_cost"] for p in points], [p["q"] for p in points], "o-", label=method,
+                lw=2 if method == "ours" else 1, ms=3)
     ax.set_yscale("log")
     ax.set_xlabel("relative cost $c_r$")
     ax.set_ylabel(f"$q_r$ (mean GMSD, 20 views, {screen} px)")
     ax.set_title(title)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(file)
     plt.close(fig)
@@ -151,15 +286,24 @@ def _crops(objects, names, source, reference, file, screen):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--models", nargs="+", required=True)
+    parser.add_argument("--models", nargs="+")
     parser.add_argument("--costs", default="0.1,0.2,0.3,0.5")
-    parser.add_argument("--out", type=pathlib.Path, required=True)
-    parser.add_argument("--evaluations", type=int, default=30)
+    parser.add_argument("--out", type=pathlib.Path)
+    parser.add_argument("--evaluations", type=int, default=100)
     parser.add_argument("--epsilon", type=float, default=0.01)
+    parser.add_argument("--epsilons", default="", help="extra epsilon values for ours (Fig. 18), e.g. 0.005,0.02")
     parser.add_argument("--screen", type=int, default=512)
+    parser.add_argument("--workers", type=int, default=0, help="triangle-wise workers (0: one per core)")
     parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--summary", type=pathlib.Path, help="only rebuild summary.md in this folder")
     args = parser.parse_args(argv)
+    if args.summary:
+        print(write_summary(args.summary))
+        return 0
+    if not args.models or args.out is None:
+        parser.error("--models and --out are required (or --summary FOLDER)")
     costs = [float(c) for c in args.costs.split(",")]
+    epsilons = [float(e) for e in args.epsilons.split(",") if e]
     methods = [m for m in args.methods.split(",") if m]
     unknown = set(methods) - set(METHODS)
     if unknown:
@@ -167,7 +311,9 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     for path in _models(args.models):
         print(compare_model(path, costs=costs, methods=methods, evaluations=args.evaluations, screen=args.screen,
-                            epsilon=args.epsilon, out=args.out), flush=True)
+                            epsilon=args.epsilon, epsilons=epsilons, workers=args.workers, out=args.out),
+              flush=True)
+    print(write_summary(args.out))
     return 0
 
 

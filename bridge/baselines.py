@@ -19,7 +19,7 @@ from ..core.meshwise import solve_meshwise
 from ..core.ssp import solve_ssp, ssp_targets
 from ..core.trianglewise import optimize_triangles
 from .mesh_io import read_image, read_mesh, write_uv_layer
-from .pack import pack_uv_layer
+from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
 from .material import base_color_image_node
 
@@ -87,31 +87,12 @@ def blender_unwrap(objects, *, source_uv, method, name=None):
     name = name or method
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
-    uvs = []
-    for obj in objects:
-        mesh = obj.data.copy()
-        tmp = bpy.data.objects.new("PUV_unwrap_tmp", mesh)
-        bpy.context.scene.collection.objects.link(tmp)
-        try:
-            for other in bpy.context.view_layer.objects:
-                other.select_set(False)
-            bpy.context.view_layer.objects.active = tmp
-            tmp.select_set(True)
-            mesh.uv_layers.active = mesh.uv_layers[source_uv]
-            bpy.ops.object.mode_set(mode="EDIT")
-            bpy.ops.mesh.select_all(action="SELECT")
-            bpy.ops.uv.select_all(action="SELECT")
-            bpy.ops.uv.seams_from_islands(mark_seams=True)
-            bpy.ops.uv.unwrap(method=method, margin=0.0)
-            bpy.ops.object.mode_set(mode="OBJECT")
-            values = np.empty(2 * len(mesh.loops))
-            mesh.uv_layers[source_uv].data.foreach_get("uv", values)
-            uvs.append(values.reshape(-1, 2))
-        finally:
-            if bpy.context.object is not None and bpy.context.object.mode != "OBJECT":
-                bpy.ops.object.mode_set(mode="OBJECT")
-            bpy.data.objects.remove(tmp)
-            bpy.data.meshes.remove(mesh)
+
+    def unwrap():
+        bpy.ops.uv.seams_from_islands(mark_seams=True)
+        bpy.ops.uv.unwrap(method=method, margin=0.0)
+
+    uvs = uv_operator_on_copies(objects, source_uv, unwrap)
     for obj, values in zip(objects, uvs):
         layer = obj.data.uv_layers.new(name=name)
         layer.data.foreach_set("uv", values.ravel())
