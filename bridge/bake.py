@@ -16,7 +16,9 @@ import scipy.ndimage
 
 from .material import base_color_image_node
 
-__all__ = ["bake_base_color"]
+__all__ = ["bake_base_color", "MAX_TILES"]
+
+MAX_TILES = 64
 
 
 @contextlib.contextmanager
@@ -268,6 +270,11 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
         ``target_uv`` leaves [0, 1]^2 the image is meant to be sampled with REPEAT: each integer tile the map
         touches is baked into the image (one Cycles bake per tile), texels of tile (0, 0) winning where tiles
         overlap, and the margin extends from the union of all tiles' texels, across the image edges.
+
+    Raises
+    ------
+    ValueError
+        A missing UV map, a non-mesh object, or a target map spanning more than :data:`MAX_TILES` tiles.
     """
     objects = list(objects)
     for obj in objects:
@@ -276,8 +283,11 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
         for name in (source_uv, target_uv):
             if name not in obj.data.uv_layers:
                 raise ValueError(f"'{obj.name}' has no UV map '{name}'")
-    common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=margin,
-                  tiles=_touched_tiles(objects, target_uv, resolution))
+    tiles = _touched_tiles(objects, target_uv, resolution)
+    if len(tiles) > MAX_TILES:
+        raise ValueError(f"UV map '{target_uv}' spans {len(tiles)} texture tiles (at most {MAX_TILES} are baked, one "
+                         f"Cycles bake each): bake onto a UV map inside [0, 1], e.g. a packed copy")
+    common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=margin, tiles=tiles)
     pixels = _bake_channel(objects, channel="COLOR", **common)
     use_alpha = any(_has_alpha(image) for obj in objects for image, _ in _slot_sources(obj))
     if use_alpha:

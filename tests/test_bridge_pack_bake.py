@@ -233,3 +233,14 @@ def test_bake_of_a_quad_in_tile_1_1_equals_the_same_quad_in_tile_0_0():
     assert after == dict(counts, images=counts["images"] + 4)
     np.testing.assert_array_equal(read_uv(obj, "Shifted"), shifted)
     assert obj.data.uv_layers.keys() == ["UVMap", "Inside", "Shifted"]
+
+
+def test_bake_refuses_a_map_spanning_too_many_tiles():
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    obj = textured_quads([square], checker_texture(8))
+    # 9 x 9 = 81 tiles: a texture repeated across a floor, say
+    obj.data.uv_layers.new(name="Tiled").uv.foreach_set("vector", (9.0 * square).ravel())
+    images = len(bpy.data.images)
+    with pytest.raises(ValueError, match="spans 81 texture tiles"):
+        bake_base_color([obj], source_uv="UVMap", target_uv="Tiled", resolution=16, margin=0, image_name="T")
+    assert len(bpy.data.images) == images
