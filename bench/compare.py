@@ -44,45 +44,60 @@ def _epsilon_method(epsilon):
     return f"ours_eps{epsilon:g}"
 
 
-def _make_uv_maps(objects, source, methods, *, evaluations, epsilon, epsilons, workers):
-    """Adds one UV map per method; returns ({method: uv name}, times in s)."""
-    from ..bridge import baselines
+class _UVMaps:
+    """Makes one UV map per method on the objects (the triangle-wise stage runs once per epsilon) and keeps times."""
 
-    times, names, triangles = {}, {}, {}
+    def __init__(self, objects, source, *, evaluations, epsilon, workers):
+        self.objects, self.source = objects, source
+        self.evaluations, self.epsilon, self.workers = evaluations, epsilon, workers
+        self.times, self._triangles = {}, {}
 
-    def targets(eps):
-        if eps not in triangles:
-            triangles[eps], times[f"triangle_eps{eps:g}"] = baselines.triangle_targets(
-                objects, source_uv=source, epsilon=eps, evaluations=evaluations, workers=workers)
-        return triangles[eps]
+    def _targets(self, epsilon):
+        from ..bridge import baselines
 
-    for method in list(methods) + [_epsilon_method(e) for e in epsilons]:
+        if epsilon not in self._triangles:
+            self._triangles[epsilon], t = baselines.triangle_targets(
+                self.objects, source_uv=self.source, epsilon=epsilon, evaluations=self.evaluations,
+                workers=self.workers)
+            self.times["triangle" if epsilon == self.epsilon else f"triangle_eps{epsilon:g}"] = t
+        return self._triangles[epsilon]
+
+    def make(self, method):
+        """Adds the UV map of ``method``; returns its name."""
+        from ..bridge import baselines
+
+        objects, source = self.objects, self.source
         start = time.perf_counter()
         if method == "input":
-            names[method] = source
+            name = source
         elif method == "repacked":
-            baselines.repacked_input(objects, source_uv=source, name="Repacked")
-            names[method] = "Repacked"
+            name = "Repacked"
+            baselines.repacked_input(objects, source_uv=source, name=name)
         elif method in baselines.BLENDER_METHODS:
+            name = method
             baselines.blender_unwrap(objects, source_uv=source, method=method)
-            names[method] = method
         elif method == "SSP":
-            baselines.ssp_uv(objects, source_uv=source)
-            names[method] = "SSP"
+            name = method
+            baselines.ssp_uv(objects, source_uv=source, name=name)
         elif method == "SSPOP":
-            baselines.sspop_uv(objects, source_uv=source)
-            names[method] = "SSPOP"
+            name = method
+            baselines.sspop_uv(objects, source_uv=source, name=name)
         else:
-            eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else epsilon
+            name = method
+            eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else self.epsilon
+            triangles = self._targets(eps)
+            start = time.perf_counter()  # the triangle-wise time is reported on its own
             kw = {"ours_common": {"formulation": "common"}, "ours_identity": {"weights": "identity"}}.get(method, {})
-            t = baselines.perceptual_uv(objects, source_uv=source, triangles=targets(eps), name=method, **kw)
+            t = baselines.perceptual_uv(objects, source_uv=source, triangles=triangles, name=name, **kw)
             if method == "ours":
-                times["mesh"] = t["mesh"]
-            names[method] = method
-        times[method] = time.perf_counter() - start
-    if epsilon in triangles:
-        times["triangle"] = times[f"triangle_eps{epsilon:g}"]
-    return names, times
+                self.times["mesh"] = t["mesh"]
+        self.times[method] = time.perf_counter() - start
+        return name
+
+    def remove(self, name):
+        if name != self.source:
+            for obj in self.objects:
+                obj.data.uv_layers.remove(obj.data.uv_layers[name])
 
 
 def _pixel_saving(objects, source, names, results, reference, screen):
@@ -139,15 +154,20 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     source = objects[0].data.uv_layers.active.name
     V, F, uv = mesh_arrays(objects, source)
     r_input = reference_resolution(objects)
-    names, times = _make_uv_maps(objects, source, methods, evaluations=evaluations, epsilon=epsilon,
-                                 epsilons=epsilons, workers=workers)
     reference = render_views(objects, uv_name=source, screen_pixels=screen)
-    results = {}
-    for method, uv_name in names.items():
-        results[method] = evaluate_uv_map(objects, uv_name, reference_uv=source, costs=costs, screen_pixels=screen,
-                                          reference_views=reference)
+    maps = _UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers)
+    names, results = {}, {}
+    # Blender keeps at most 8 UV maps per mesh: each map is evaluated as soon as it exists and then removed,
+    # except the two the crops and the pixel saving need.
+    for method in list(methods) + [_epsilon_method(e) for e in epsilons]:
+        names[method] = maps.make(method)
+        results[method] = evaluate_uv_map(objects, names[method], reference_uv=source, costs=costs,
+                                          screen_pixels=screen, reference_views=reference)
         print(f"{path.stem} {method}: " + ", ".join(f"c {p['relative_cost']:.3f} q {p['q']:.4g}"
                                                      for p in results[method]["points"]), flush=True)
+        if method not in ("input", "ours"):
+            maps.remove(names.pop(method))
+    times = maps.times
     saving = _pixel_saving(objects, source, names, results, reference, screen)
     stem = path.stem
     table = dict(model=stem, vertices=len(V), faces=len(F), input_resolution=r_input,
