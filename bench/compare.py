@@ -144,13 +144,14 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     """Runs every method on one model file and writes its plot, crops, markdown table and JSON; returns the table."""
     import bpy
 
+    from ..bridge.batch import textured_objects
     from ..bridge.evaluate import evaluate_uv_map, mesh_arrays, reference_resolution, render_views
     from ..bridge.mesh_io import import_model
     from ..core.cost import texel_cost
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     import_model(path)
-    objects = [o for o in bpy.context.scene.objects if o.type == "MESH" and o.data.uv_layers]
+    objects = textured_objects()
     source = objects[0].data.uv_layers.active.name
     V, F, uv = mesh_arrays(objects, source)
     r_input = reference_resolution(objects)

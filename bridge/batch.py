@@ -13,14 +13,23 @@ import tempfile
 
 import bpy
 
-__all__ = ["optimize_file", "evaluate_file"]
+__all__ = ["textured_objects", "optimize_file", "evaluate_file"]
 
 
 def _log(message):
     print(message, file=sys.stderr, flush=True)
 
 
-def _textured_objects(object_name):
+def textured_objects(object_name=None):
+    """The mesh objects of the scene that show one image texture: ``object_name`` alone, or all that share it.
+
+    Meshes without a Base Color image (an armature's bone shape, a helper) are not part of the model.
+
+    Raises
+    ------
+    ValueError
+        No such object, no textured mesh, or meshes with different textures (the message lists them).
+    """
     from .material import base_color_image_node
 
     if object_name is not None:
@@ -97,7 +106,7 @@ def optimize_file(args):
     if args.report:
         _writable_folder(pathlib.Path(args.report).resolve().parent)
     import_model(args.input)
-    objects = _textured_objects(args.object)
+    objects = textured_objects(args.object)
     pipeline = optimize_objects(objects, args.settings, source_uv=args.uv, output_dir=str(images_dir))
     last_stage = None
     try:
@@ -170,10 +179,9 @@ def evaluate_file(args):
     from .mesh_io import import_model
 
     import_model(args.input)
-    objects = [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]
-    objects = [obj for obj in objects if args.uv in obj.data.uv_layers]
+    objects = [obj for obj in textured_objects() if args.uv in obj.data.uv_layers]
     if not objects:
-        raise ValueError(f"no mesh object in {args.input} has a UV map '{args.uv}'")
+        raise ValueError(f"no textured mesh object in {args.input} has a UV map '{args.uv}'")
     ref_uv = args.ref_uv or objects[0].data.uv_layers.active.name
     result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs)
     result["input"] = str(pathlib.Path(args.input).resolve())

@@ -73,3 +73,21 @@ def test_cost_invariance_under_uv_scale(spot):
     # margin wraps the image edges like the input's islands do under REPEAT (a margin stopping at the edges
     # gave 3.2e-3 vs 2.1e-3)
     assert b["q"] == pytest.approx(a["q"], rel=0.02)
+
+
+def test_untextured_helper_meshes_are_not_part_of_the_evaluated_model(spot):
+    """glTF rigs bring bone-shape meshes (CesiumMan: an 80-face icosphere with UVs around the body); they have no
+    texture, so the evaluation (and the optimize CLI) leaves them out."""
+    from perceptual_uv.bridge.batch import textured_objects
+
+    objects, uv, _ = spot
+    mesh = bpy.data.meshes.new("bone_shape")
+    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [], [(0, 1, 2)])
+    mesh.uv_layers.new(name=uv)
+    helper = bpy.data.objects.new("bone_shape", mesh)
+    bpy.context.scene.collection.objects.link(helper)
+    try:
+        assert textured_objects() == objects
+    finally:
+        bpy.data.objects.remove(helper)
+        bpy.data.meshes.remove(mesh)
