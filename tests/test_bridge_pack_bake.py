@@ -146,20 +146,14 @@ def texel_centres_inside(triangle, resolution, *, eps=1e-3):
 
 def test_bake_writes_the_parts_of_spot_outside_the_unit_square_to_their_wrapped_texels(spot_obj):
     from perceptual_uv.bridge.material import base_color_image_node
-    from perceptual_uv.bridge.mesh_io import import_model
+    from perceptual_uv.bridge.mesh_io import import_model, read_mesh
 
     import_model(spot_obj)
     obj = next(obj for obj in bpy.context.scene.objects if obj.type == "MESH")
     uv_name = obj.data.uv_layers.active.name
     source = base_color_image_node(obj.material_slots[0].material).image
     resolution = source.size[0]
-    mesh = obj.data
-    mesh.calc_loop_triangles()
-    loops = np.empty(3 * len(mesh.loop_triangles), dtype=np.int64)
-    mesh.loop_triangles.foreach_get("loops", loops)
-    uv = np.empty(2 * len(mesh.loops))
-    mesh.uv_layers[uv_name].uv.foreach_get("vector", uv)
-    triangles = uv.reshape(-1, 2)[loops].reshape(-1, 3, 2)
+    triangles = read_mesh(obj, uv_name=uv_name).uv
     outside = (triangles.min(axis=(1, 2)) < 0) | (triangles.max(axis=(1, 2)) > 1)
     assert outside.sum() == 10  # spot: u down to -0.052, v up to 1.001
 
