@@ -160,8 +160,14 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     names, results = {}, {}
     # Blender keeps at most 8 UV maps per mesh: each map is evaluated as soon as it exists and then removed,
     # except the two the crops and the pixel saving need.
+    failures = {}
     for method in list(methods) + [_epsilon_method(e) for e in epsilons]:
-        names[method] = maps.make(method)
+        try:
+            names[method] = maps.make(method)
+        except ValueError as error:  # a baseline that cannot handle this input is reported, not fatal
+            failures[method] = str(error)
+            print(f"{path.stem} {method}: FAILED: {error}", flush=True)
+            continue
         results[method] = evaluate_uv_map(objects, names[method], reference_uv=source, costs=costs,
                                           screen_pixels=screen, reference_views=reference)
         print(f"{path.stem} {method}: " + ", ".join(f"c {p['relative_cost']:.3f} q {p['q']:.4g}"
@@ -176,7 +182,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     table = dict(model=stem, vertices=len(V), faces=len(F), surface_area=surface_area, input_resolution=r_input,
                  input_cost=float(texel_cost(uv, r_input)), epsilon=epsilon, evaluations=evaluations,
                  screen_pixels=screen, t_triangle=times.get("triangle"), t_mesh=times.get("mesh"),
-                 pixel_saving=saving, beaten_by=_wins(results))
+                 pixel_saving=saving, beaten_by=_wins(results), failures=failures)
     _plot(results, out / f"{stem}_q_vs_c.png", stem, screen)
     _crops(objects, names, source, reference, out / f"{stem}_crops_c030.png", screen)
     (out / f"{stem}.md").write_text(_model_markdown(table, results, costs))
@@ -200,6 +206,8 @@ def _model_markdown(table, results, costs):
         by_cost = {p["target_cost"]: p for p in res["points"]}
         lines.append(f"| {method} | " + " | ".join(f"{by_cost[c]['q']:.4g} (r {by_cost[c]['resolution']})"
                                                    for c in costs) + f" | {res['e_iso'] / table['surface_area']:.4g} |")
+    for method, reason in table.get("failures", {}).items():
+        lines.append(f"| {method} | failed: {reason} |" + " |" * len(costs))
     saving = table["pixel_saving"]
     if saving:
         lines += ["", f"Pixel saving: ours reaches the input's q_r at c_r = {SAVING_REFERENCE_COST} "
