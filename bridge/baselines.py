@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core.loss import texture_luma
 from ..core.meshwise import solve_meshwise
+from ..core.overlap import restore_folded_charts
 from ..core.ssp import solve_ssp, ssp_targets
 from ..core.trianglewise import optimize_triangles
 from .mesh_io import read_image, read_mesh, write_uv_layer
@@ -136,6 +137,9 @@ def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=
 def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual"):
     """Our mesh-wise stage on triangle-wise results ``triangles``, with the Fig. 17 ablations, packed.
 
+    As in the pipeline, charts the fit folds over themselves keep their input layout
+    (:func:`core.overlap.restore_folded_charts`).
+
     Parameters
     ----------
     triangles : core.trianglewise.TrianglewiseResult
@@ -148,7 +152,8 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     _, F, uv = mesh_arrays(objects, source_uv)
     w_R, w_S = triangles.fit_weights()
     result = solve_meshwise(F, uv, triangles.params, w_R, w_S, weights=weights, formulation=formulation)
+    uv_fit, _ = restore_folded_charts(uv, result.uv, result.topology.face_chart)
     t_mesh = time.perf_counter() - start
-    _write(objects, name, result.uv)
+    _write(objects, name, uv_fit)
     _pack(objects, name)
     return {"mesh": t_mesh, "total": time.perf_counter() - start}

@@ -310,6 +310,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     """
     from ..core.loss import texture_luma
     from ..core.meshwise import iter_solve_meshwise
+    from ..core.overlap import restore_folded_charts
     from ..core.trianglewise import iter_optimize_triangles, losses_at
     from .bake import bake_base_color
     from .mesh_io import write_uv_layer
@@ -357,13 +358,17 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         clock = time.perf_counter()
         stage = iter_solve_meshwise(F, uv_in, params, w_R, w_S)
         meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit", clock)
+        uv_fit, restored = restore_folded_charts(uv_in, meshwise.uv, meshwise.topology.face_chart)
+        if restored.size:
+            notes.append(f"{restored.size} UV island(s) folded over themselves in the mesh-wise fit (it is locally "
+                         "injective only) and keep their input layout, scaled to their new size")
         times["mesh"] = time.perf_counter() - clock
 
         yield Progress("pack", 0, 1, "Packing islands")
         clock = time.perf_counter()
         uv_name = _unique_uv_name(objects, settings.uv_map_name)
         for obj, rows in zip(objects, per_object):
-            write_uv_layer(obj, uv_name, meshwise.uv[rows], mesh.tri_loops[rows])
+            write_uv_layer(obj, uv_name, uv_fit[rows], mesh.tri_loops[rows])
             created.uv_layers.append((obj.data, uv_name))
         resolution = _pack(objects, mesh, uv_name, (width, height), settings, pack_uv_layer)
         uv_out = _read_packed(objects, mesh, uv_name)
@@ -379,7 +384,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         yield Progress("loss", 0, 1, "Measuring the loss per triangle")
         losses = np.zeros(m)  # skipped triangles show 0 in the overlay; the report counts optimized ones only
-        losses[faces] = losses_at(V, F, uv_in, luma, meshwise.uv, screen_pixels=settings.screen_pixels, faces=faces)
+        losses[faces] = losses_at(V, F, uv_in, luma, uv_fit, screen_pixels=settings.screen_pixels, faces=faces)
         for obj, rows in zip(objects, per_object):
             _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
 
@@ -402,6 +407,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "times_s": {key: round(value, 3) for key, value in times.items()},
             "flipped_triangles": int(meshwise.flipped),
             "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),
+            "restored_charts": int(restored.size),
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
             "optimized_triangles": int(len(faces)),
             "skipped_triangles": int(m - len(faces)),

@@ -160,6 +160,15 @@ def test_report_fields(registered, spot_obj, tmp_path):
     assert report["flipped_triangles"] == 0
     overlaps = report["overlapping_pairs"]
     assert overlaps["total"] == overlaps["within_charts"] + overlaps["between_charts"] >= 0
+    # no island overlaps itself more than the input did: folded charts get their input layout back
+    from perceptual_uv.bridge.mesh_io import read_mesh
+    from perceptual_uv.core.charts import uv_topology
+    from perceptual_uv.core.overlap import count_overlaps
+
+    source = read_mesh(obj, uv_name=report["source_uv_map"])
+    before = count_overlaps(source.uv, uv_topology(source.F, source.uv).face_chart)
+    assert overlaps["within_charts"] <= before.within_charts
+    assert report["restored_charts"] >= 0
     assert 0 <= report["triangles_within_bound"] <= 1
     assert abs(report["relative_cost"] - 0.3) <= 0.015
     assert (tmp_path / "spot_texture_perceptual.png").is_file() and report["image_file"].startswith(str(tmp_path))

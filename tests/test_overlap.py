@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from perceptual_uv.core.overlap import count_overlaps, overlapping_pairs, overlapping_pairs_reference, triangles_overlap
+from perceptual_uv.core.overlap import (count_overlaps, overlapping_pairs, overlapping_pairs_reference,
+                                       restore_folded_charts, triangles_overlap)
 
 UNIT = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]
 
@@ -82,3 +83,29 @@ def test_validation():
         count_overlaps(np.zeros((2, 3, 2)), face_chart=[0])
     with pytest.raises(ValueError, match="NaN"):
         overlapping_pairs(np.full((2, 3, 2), np.nan))
+
+
+# --- restoring folded charts -----------------------------------------------------------------------------------
+
+def test_a_chart_folded_by_the_fit_gets_its_input_layout_back_at_its_new_size():
+    # chart 0: a unit square (2 triangles); the "fit" folds its second triangle onto the first and doubles the
+    # area (each triangle 0.5 -> 1, total 2). chart 1: one triangle, shrunk, not folded.
+    uv_in = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]],
+                      [[3, 0], [4, 0], [3, 1]]], dtype=float)
+    uv_new = np.array([[[0, 0], [2, 0], [2, 1]], [[0, 0], [2, 0], [2, 1]],
+                       [[3, 0], [3.5, 0], [3, 0.5]]], dtype=float)
+    chart = np.array([0, 0, 1])
+    uv, restored = restore_folded_charts(uv_in, uv_new, chart)
+    np.testing.assert_array_equal(restored, [0])
+    np.testing.assert_allclose(uv[:2], np.sqrt(2.0) * uv_in[:2])  # area 1 -> 2: scale sqrt 2
+    np.testing.assert_array_equal(uv[2], uv_new[2])
+    assert count_overlaps(uv, chart).total == 0
+
+
+def test_an_overlap_already_in_the_input_is_not_held_against_the_fit():
+    tri = [[0, 0], [1, 0], [0, 1]]
+    uv_in = np.array([tri, tri], dtype=float)  # two triangles of one chart sharing texels (mirrored halves)
+    uv_new = 0.5 * uv_in
+    uv, restored = restore_folded_charts(uv_in, uv_new, np.zeros(2, int))
+    assert restored.size == 0
+    np.testing.assert_array_equal(uv, uv_new)
