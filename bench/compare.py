@@ -250,8 +250,10 @@ def write_summary(folder):
             f"{'-' if baseline is None else f'{baseline[0]:.3g} ({baseline[1]})'} | {_q(q03.get('ours'))} | "
             f"{'-' if not saving else _saving_text(saving)} | {wins or '-'} |")
     if fractions:
+        missed = len(rows) - len(fractions)
         lines += ["", f"Mean relative cost at which ours matches the input's q_r at c_r = 0.5: "
-                      f"{np.mean(fractions):.3f} over {len(fractions)} models (target <= 0.25)."]
+                      f"{np.mean(fractions):.3f} over the {len(fractions)} models where it does (target <= 0.25)"
+                      + (f"; on {missed} of {len(rows)} models ours never reaches it." if missed else ".")]
     (folder / "summary.md").write_text("\n".join(lines) + "\n")
     return "\n".join(lines)
 
