@@ -68,22 +68,16 @@ class _UVMaps:
 
         objects, source = self.objects, self.source
         start = time.perf_counter()
-        if method == "input":
-            name = source
-        elif method == "repacked":
-            name = "Repacked"
+        name = {"input": source, "repacked": "Repacked"}.get(method, method)
+        if method == "repacked":
             baselines.repacked_input(objects, source_uv=source, name=name)
         elif method in baselines.BLENDER_METHODS:
-            name = method
             baselines.blender_unwrap(objects, source_uv=source, method=method)
         elif method == "SSP":
-            name = method
             baselines.ssp_uv(objects, source_uv=source, name=name)
         elif method == "SSPOP":
-            name = method
             baselines.sspop_uv(objects, source_uv=source, name=name)
-        else:
-            name = method
+        elif method != "input":
             eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else self.epsilon
             triangles = self._targets(eps)
             start = time.perf_counter()  # the triangle-wise time is reported on its own
@@ -148,6 +142,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     from ..bridge.evaluate import evaluate_uv_map, mesh_arrays, reference_resolution, render_views
     from ..bridge.mesh_io import import_model
     from ..core.cost import texel_cost
+    from ..core.evaluation import symmetric_dirichlet
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     import_model(path)
@@ -177,8 +172,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     times = maps.times
     saving = _pixel_saving(objects, source, names, results, reference, screen)
     stem = path.stem
-    edges = V[F[:, 1:]] - V[F[:, :1]]
-    surface_area = float(0.5 * np.linalg.norm(np.cross(edges[:, 0], edges[:, 1]), axis=1).sum())
+    surface_area = float(symmetric_dirichlet(V, F, uv, full=True)[1]["area"])
     table = dict(model=stem, vertices=len(V), faces=len(F), surface_area=surface_area, input_resolution=r_input,
                  input_cost=float(texel_cost(uv, r_input)), epsilon=epsilon, evaluations=evaluations,
                  screen_pixels=screen, t_triangle=times.get("triangle"), t_mesh=times.get("mesh"),

@@ -106,7 +106,7 @@ def _slot_sources(obj):
 
 
 def _has_alpha(image):
-    if image is None or image.channels < 4 or image.alpha_mode == "NONE":
+    if image.channels < 4 or image.alpha_mode == "NONE":
         return False
     pixels = np.empty(len(image.pixels), dtype=np.float32)
     image.pixels.foreach_get(pixels)
@@ -289,14 +289,15 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
                          f"Cycles bake each): bake onto a UV map inside [0, 1], e.g. a packed copy")
     common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=margin, tiles=tiles)
     pixels = _bake_channel(objects, channel="COLOR", **common)
-    use_alpha = any(_has_alpha(image) for obj in objects for image, _ in _slot_sources(obj))
+    sources = [image for obj in objects for image, _ in _slot_sources(obj) if image is not None]
+    use_alpha = any(_has_alpha(image) for image in sources)
     if use_alpha:
         pixels[..., 3] = _bake_channel(objects, channel="ALPHA", **common)[..., 0]
     else:
         pixels[..., 3] = 1.0
     # Float sources (16-bit PNG, EXR) hold linear values in ``pixels``; a byte image would read those numbers as
     # sRGB and darken them, so the result is a float image too (saved as a 16-bit PNG).
-    use_float = any(image is not None and image.is_float for obj in objects for image, _ in _slot_sources(obj))
+    use_float = any(image.is_float for image in sources)
     image = bpy.data.images.new(image_name, resolution, resolution, alpha=use_alpha, float_buffer=use_float)
     image.pixels.foreach_set(np.clip(pixels, 0.0, 1.0).ravel())
     image.update()
