@@ -214,9 +214,23 @@ def test_solver_validation():
     with pytest.raises(ValueError, match="texture or a precomputed metric"):
         solve_ssp(V, F, uv)
     collapsed = uv.copy()
-    collapsed[0] = [[0, 0], [1, 1], [2, 2]]
-    with pytest.raises(ValueError, match="no UV area"):
+    collapsed[:] = [[0, 0], [1, 1], [2, 2]]
+    with pytest.raises(ValueError, match="no triangle has both surface area and UV area"):
         solve_ssp(V, F, collapsed, metric=metric)
+
+
+def test_a_triangle_without_uv_area_is_left_out_and_the_others_reach_their_optimum():
+    # The input gives triangle 0 no UV area (its signal stretch is infinite there): it is left out, so the other
+    # three are the free-triangle problem without it, whose optimum is the bound of those three alone.
+    V, F, uv, metric, area = _free_triangles(1)
+    uv[0] = [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]
+    result = solve_ssp(V, F, uv, metric=metric, geometric_weight=0.0, tol=1e-13)
+    assert result.converged and result.flipped == 0
+    assert result.energy_history[-1] == pytest.approx(_lower_bound(metric[1:], area[1:]), rel=1e-7)
+    assert np.all(np.sign(_uv_det(result.uv[1:])) == np.sign(_uv_det(uv[1:])))
+    # Its own chart has nothing to fit: it stays collapsed about its UV centroid.
+    assert _uv_det(result.uv[:1])[0] == pytest.approx(0.0, abs=1e-12)
+    np.testing.assert_allclose(result.uv[0].mean(axis=0), [1.0, 1.0], atol=1e-12)
 
 
 # --- SSPOP targets --------------------------------------------------------------------------------------------
