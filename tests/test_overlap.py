@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core.overlap import (count_overlaps, overlapping_pairs, overlapping_pairs_reference,
-                                       restore_folded_charts, triangles_overlap)
+                                       overlap_areas, restore_folded_charts, triangles_overlap)
 
 UNIT = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]
 
@@ -109,3 +109,31 @@ def test_an_overlap_already_in_the_input_is_not_held_against_the_fit():
     uv, restored = restore_folded_charts(uv_in, uv_new, np.zeros(2, int))
     assert restored.size == 0
     np.testing.assert_array_equal(uv, uv_new)
+
+
+def test_overlap_areas_by_hand():
+    right = [[0, 0], [1, 0], [0, 1]]
+    uv = np.array([right,
+                   [[0.5, 0], [1.5, 0], [0.5, 1]],  # shifted by half: shares the triangle (0.5,0),(1,0),(0.5,0.5)
+                   [[1, 0], [1, 1], [0, 1]],  # the square's other half: touches along the diagonal only
+                   [[0, 1], [1, 0], [0, 0]]], dtype=float)  # the first one, clockwise
+    # An equilateral triangle and its half-turn about the centroid: a hexagram, whose hexagon is 2/3 of either.
+    corners = np.array([[np.cos(a), np.sin(a)] for a in np.pi / 2 + 2 * np.pi / 3 * np.arange(3)])
+    star = np.array([corners, -corners])
+    np.testing.assert_allclose(overlap_areas(uv, [[0, 1], [0, 2], [0, 3]]), [0.125, 0.0, 0.5], atol=1e-15)
+    triangle_area = 3 * np.sqrt(3) / 4
+    np.testing.assert_allclose(overlap_areas(star, [[0, 1]]), [2 / 3 * triangle_area], rtol=1e-12)
+    with pytest.raises(ValueError, match="outside"):
+        overlap_areas(uv, [[0, 4]])
+
+
+@pytest.mark.parametrize("shift, folded", [(0.02, False), (0.1, True)])
+def test_a_chart_is_restored_only_when_its_shared_area_grows_beyond_the_tolerance(shift, folded):
+    # One chart of two unit right triangles (area 1 in all). The fit moves the second so that the two share
+    # the corner triangle of legs `shift`: area shift^2 / 2, i.e. 2e-4 (a sliver, kept) or 5e-3 (restored).
+    right = np.array([[0, 0], [1, 0], [0, 1]], dtype=float)
+    uv_in = np.array([right, right + [3, 0]])
+    uv_new = np.array([right, right + [1 - shift, 0]])
+    uv, restored = restore_folded_charts(uv_in, uv_new, np.zeros(2, int))
+    assert restored.size == int(folded)
+    np.testing.assert_array_equal(uv, uv_in if folded else uv_new)
