@@ -309,12 +309,13 @@ def _result_with_weights(w_R, w_S, *, epsilon):
         formulation="constrained", backend="fast")
 
 
-def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_the_bound():
-    result = _result_with_weights([0.0, 2e-3], [0.0, 1e-3], epsilon=0.02)
-    w_R, w_S = result.fit_weights()
-    np.testing.assert_array_equal(w_R, [0.0, 2e-3])  # rotation: no floor
-    np.testing.assert_allclose(w_S, [4e-6, 1e-3 + 4e-6], rtol=1e-12)  # (0.1 * 0.02)^2 = 4e-6
-    np.testing.assert_array_equal(result.fit_weights(floor=0.0)[1], [0.0, 1e-3])
+def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_w_rs_whatever_the_bound():
+    for epsilon in (0.002, 0.02):
+        result = _result_with_weights([0.0, 2e-3], [0.0, 1e-3], epsilon=epsilon)
+        w_R, w_S = result.fit_weights()
+        np.testing.assert_array_equal(w_R, [0.0, 2e-3])  # rotation: no floor
+        np.testing.assert_allclose(w_S, [1e-6, 1e-3 + 1e-6], rtol=1e-12)  # 0.1 * w_rs = 1e-6
+        np.testing.assert_array_equal(result.fit_weights(floor=0.0)[1], [0.0, 1e-3])
     with pytest.raises(ValueError, match="floor"):
         result.fit_weights(floor=-1.0)
 
