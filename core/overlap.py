@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._jit import njit
+from .charts import signed_uv_areas
 from .cost import uv_area
 
 __all__ = ["OverlapCount", "overlapping_pairs", "overlap_areas", "count_overlaps", "triangles_overlap",
@@ -332,9 +333,7 @@ def _within_chart_shared_fraction(uv, face_chart, n_charts):
     pairs = overlapping_pairs(uv)
     pairs = pairs[face_chart[pairs[:, 0]] == face_chart[pairs[:, 1]]]
     shared = np.bincount(face_chart[pairs[:, 0]], overlap_areas(uv, pairs), minlength=n_charts)
-    area = 0.5 * np.abs((uv[:, 1, 0] - uv[:, 0, 0]) * (uv[:, 2, 1] - uv[:, 0, 1])
-                        - (uv[:, 1, 1] - uv[:, 0, 1]) * (uv[:, 2, 0] - uv[:, 0, 0]))
-    area = np.bincount(face_chart, area, minlength=n_charts)
+    area = np.bincount(face_chart, np.abs(signed_uv_areas(uv)), minlength=n_charts)
     return np.divide(shared, area, out=np.zeros(n_charts), where=area > 0)
 
 
