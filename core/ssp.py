@@ -372,7 +372,8 @@ class SSPResult:
     converged : bool
         Whether the relative decrease fell below ``tol`` before ``max_iterations``.
     flipped : int
-        Fitted triangles (surface area and input UV area) whose UV orientation differs from the input's: 0.
+        Fitted triangles (surface area and input UV area) whose UV orientation differs from the input's (the
+        line search keeps it 0).
     metric : (m, 2, 2) float64 ndarray
         The blended tensors that were minimized.
     """
