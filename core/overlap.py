@@ -47,9 +47,14 @@ def _separated_by_edges_of(P, Q):
     return False
 
 
+@njit(inline="always")
+def _twice_signed_area(T):
+    return _orient(T[0, 0], T[0, 1], T[1, 0], T[1, 1], T[2, 0], T[2, 1])
+
+
 @njit
 def _ccw(T):
-    if _orient(T[0, 0], T[0, 1], T[1, 0], T[1, 1], T[2, 0], T[2, 1]) < 0.0:
+    if _twice_signed_area(T) < 0.0:
         out = np.empty((3, 2))
         out[0] = T[0]
         out[1] = T[2]
@@ -60,9 +65,7 @@ def _ccw(T):
 
 @njit
 def _interiors_overlap(P, Q):
-    if _orient(P[0, 0], P[0, 1], P[1, 0], P[1, 1], P[2, 0], P[2, 1]) == 0.0:
-        return False
-    if _orient(Q[0, 0], Q[0, 1], Q[1, 0], Q[1, 1], Q[2, 0], Q[2, 1]) == 0.0:
+    if _twice_signed_area(P) == 0.0 or _twice_signed_area(Q) == 0.0:
         return False
     P = _ccw(P)
     Q = _ccw(Q)
@@ -110,8 +113,7 @@ def _overlap_areas_kernel(uv, pairs):
     for k in range(pairs.shape[0]):
         P = uv[pairs[k, 0]]
         Q = uv[pairs[k, 1]]
-        if (_orient(P[0, 0], P[0, 1], P[1, 0], P[1, 1], P[2, 0], P[2, 1]) != 0.0
-                and _orient(Q[0, 0], Q[0, 1], Q[1, 0], Q[1, 1], Q[2, 0], Q[2, 1]) != 0.0):
+        if _twice_signed_area(P) != 0.0 and _twice_signed_area(Q) != 0.0:
             out[k] = _clipped_area(_ccw(P), _ccw(Q))
     return out
 
