@@ -6,7 +6,9 @@ user's scene settings are left exactly as they were; the only thing that stays i
 
 Cycles writes only texels whose centres lie in a target triangle inside [0, 1]^2. A target UV map that leaves the
 unit square (renderers sample it with REPEAT) is baked once per integer tile it touches, shifted into the unit
-square, and the tiles are composited into the one image.
+square, and the tiles are composited into the one image. Texels that bilinear lookups read next to a triangle but
+whose centres no triangle covers (thin strips, charts smaller than a texel) then get the source colour of the
+triangle's nearest point, and the margin extends from all of these.
 """
 import contextlib
 
@@ -14,7 +16,10 @@ import bpy
 import numpy as np
 import scipy.ndimage
 
+from ..core.footprint import footprint_texels
+from ..core.raster import sample_bilinear
 from .material import base_color_image_node
+from .mesh_io import read_image, read_mesh
 
 __all__ = ["bake_base_color", "MAX_TILES"]
 
@@ -145,7 +150,9 @@ def _touched_tiles(objects, target_uv, resolution):
 def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel, tiles=((0, 0),)):
     """Bake one channel group ("COLOR" or "ALPHA") of ``objects`` into a float (r, r, 4) array.
 
-    ``tiles`` lists the integer UV tiles of ``target_uv`` to bake, tile (0, 0) first when present.
+    ``tiles`` lists the integer UV tiles of ``target_uv`` to bake, tile (0, 0) first when present. Cycles
+    writes the covered texels; the texels bilinear lookups read next to a triangle get the source colour of the
+    triangle's nearest point (:func:`_fill_footprints`), and the margin extends from both (:func:`_extend_margin`).
     """
     with _temporary_ids() as created:
         target = bpy.data.images.new("perceptual_uv_bake_target", resolution, resolution, alpha=False,
@@ -175,20 +182,21 @@ def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel,
                 mesh.materials[index] = _emission_material(created, source_uv, image, constant, channel, target)
         view_layer.objects.active = proxies[0]
 
-        def bake(uv_layer, bake_margin, use_clear):
+        def bake(uv_layer):
             with bpy.context.temp_override(scene=scene, view_layer=view_layer, active_object=proxies[0],
                                            object=proxies[0], selected_objects=proxies,
                                            selected_editable_objects=proxies):
-                bpy.ops.object.bake(type="EMIT", uv_layer=uv_layer, margin=bake_margin, margin_type="EXTEND",
-                                    use_clear=use_clear, target="IMAGE_TEXTURES")
+                bpy.ops.object.bake(type="EMIT", uv_layer=uv_layer, margin=0, use_clear=False,
+                                    target="IMAGE_TEXTURES")
             pixels = np.empty(resolution * resolution * 4, dtype=np.float32)
             target.pixels.foreach_get(pixels)
             return pixels.reshape(resolution, resolution, 4)
 
-        if list(tiles) in ([], [(0, 0)]):
-            return bake(target_uv, margin, True)
-        return _bake_tiles(bake, target, [proxy.data for proxy in proxies], source_uv=source_uv,
-                           target_uv=target_uv, margin=margin, tiles=tiles)
+        pixels, covered = _bake_tiles(bake, target, [proxy.data for proxy in proxies], source_uv=source_uv,
+                                      target_uv=target_uv, tiles=tiles)
+    _fill_footprints(pixels, covered, objects, source_uv=source_uv, target_uv=target_uv, channel=channel)
+    _extend_margin(pixels, covered, margin)
+    return pixels
 
 
 _TILE_UV = "perceptual_uv_bake_tile"
@@ -197,9 +205,10 @@ _TILE_UV = "perceptual_uv_bake_tile"
 _UNWRITTEN = -1.0
 
 
-def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, margin, tiles):
+def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, tiles):
     """Bake each tile of ``target_uv`` shifted into the unit square and composite the tiles (see _bake_channel).
 
+    Returns the (r, r, 4) pixels, black and opaque where no tile wrote, and the (r, r) texels written.
     Coverage comes from Cycles itself (texels still holding the sentinel after a bake were not written) rather
     than from rasterising the triangles again in numpy: it is exactly the set of texels Cycles considers inside,
     whatever its rule for centres on an edge, and it works for any polygon Cycles triangulates.
@@ -223,25 +232,74 @@ def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, margin, tiles):
         for mesh, base in zip(meshes, bases):
             mesh.uv_layers[_TILE_UV].uv.foreach_set("vector", (base - tile).ravel())
         target.pixels.foreach_set(sentinel)
-        baked = bake(_TILE_UV, 0, False)
+        baked = bake(_TILE_UV)
         # Tile (0, 0) comes first and keeps its texels; the other tiles only fill texels it left uncovered.
         new = (baked[..., 3] != _UNWRITTEN) & ~covered
         pixels[new] = baked[new]
         covered |= new
-    if margin > 0 and covered.any() and not covered.all():
-        # Cycles' EXTEND margin: uncovered texels near an island take the value of the nearest covered texel.
-        # Distances wrap around the image borders: an island reaching an edge here continues on the other side
-        # under REPEAT, and bilinear lookups across the edge read the margin there. Measured on spot at
-        # c_r = 0.3: a margin stopping at the edges left dark pixels in 2 of 20 views, and q was 35% above that
-        # of the same map at half scale (islands inside); with the wrap both q agree exactly.
-        padded = np.pad(~covered, margin, mode="wrap")
-        distance, (rows, columns) = scipy.ndimage.distance_transform_edt(padded, return_indices=True)
-        inner = (slice(margin, margin + resolution),) * 2
-        rows = (rows[inner] - margin) % resolution
-        columns = (columns[inner] - margin) % resolution
-        fill = ~covered & (distance[inner] <= margin)
-        pixels[fill] = pixels[rows[fill], columns[fill]]
-    return pixels
+    return pixels, covered
+
+
+def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel):
+    """Give the texels bilinear lookups read next to a triangle, but Cycles left empty, their source colour.
+
+    Cycles writes a texel only if its centre lies in a triangle, so a strip narrower than a texel, or a chart
+    packed smaller than one, is drawn from texels nobody wrote: dark seams, or the colour of whatever chart the
+    margin reached first. Each such texel takes the source value at the point of the nearest triangle closest
+    to its centre (:func:`core.footprint.footprint_texels`), read as the bake reads it (bilinear, REPEAT, stored
+    values; the constant Base Color for slots without an image). ``pixels`` and ``covered`` are updated.
+    """
+    meshes = [read_mesh(obj, uv_name=target_uv) for obj in objects]
+    rows, columns, face, bary = footprint_texels(np.concatenate([mesh.uv for mesh in meshes]), covered)
+    if not len(face):
+        return
+    start = 0
+    for obj, mesh in zip(objects, meshes):
+        mine = (face >= start) & (face < start + len(mesh.F))
+        local = face[mine] - start
+        start += len(mesh.F)
+        if not mine.any():
+            continue
+        source = read_mesh(obj, uv_name=source_uv).uv
+        points = np.einsum("pk,pkd->pd", bary[mine], source[local])
+        sources = _slot_sources(obj)
+        # Blender clamps material indices beyond the last slot to the last slot
+        slot = np.clip(mesh.material_index[local], 0, len(sources) - 1)
+        values = np.empty((len(local), 4), dtype=np.float32)
+        for index in np.unique(slot):
+            image, constant = sources[index]
+            here = slot == index
+            if image is None:
+                values[here] = constant
+            else:
+                texture = read_image(image)
+                texture = _to_rgba(texture.reshape(-1, texture.shape[2])).reshape(*texture.shape[:2], 4)
+                values[here] = sample_bilinear(texture, points[here] * np.array(texture.shape[1::-1]))
+        if channel == "ALPHA":
+            values[:, :3] = values[:, 3:]
+        values[:, 3] = 1.0  # as Cycles writes
+        pixels[rows[mine], columns[mine]] = values
+    covered[rows, columns] = True
+
+
+def _extend_margin(pixels, covered, margin):
+    """Cycles' EXTEND margin: uncovered texels within ``margin`` of a covered one take its value (in place).
+
+    Distances wrap around the image borders: an island reaching an edge here continues on the other side under
+    REPEAT, and bilinear lookups across the edge read the margin there. Measured on spot at c_r = 0.3: a margin
+    stopping at the edges left dark pixels in 2 of 20 views, and q was 35% above that of the same map at half
+    scale (islands inside); with the wrap both q agree exactly.
+    """
+    if margin <= 0 or not covered.any() or covered.all():
+        return
+    resolution = covered.shape[0]
+    padded = np.pad(~covered, margin, mode="wrap")
+    distance, (rows, columns) = scipy.ndimage.distance_transform_edt(padded, return_indices=True)
+    inner = (slice(margin, margin + resolution),) * 2
+    rows = (rows[inner] - margin) % resolution
+    columns = (columns[inner] - margin) % resolution
+    fill = ~covered & (distance[inner] <= margin)
+    pixels[fill] = pixels[rows[fill], columns[fill]]
 
 
 def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_name):
@@ -269,7 +327,9 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
         EXR), so the colours mean the same; alpha is baked too when a source image uses it. Where
         ``target_uv`` leaves [0, 1]^2 the image is meant to be sampled with REPEAT: each integer tile the map
         touches is baked into the image (one Cycles bake per tile), texels of tile (0, 0) winning where tiles
-        overlap, and the margin extends from the union of all tiles' texels, across the image edges.
+        overlap. Texels that bilinear lookups read next to a triangle but that no triangle covers hold the
+        source value at the triangle's nearest point, and the margin extends from all these texels, across the
+        image edges.
 
     Raises
     ------

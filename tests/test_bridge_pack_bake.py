@@ -212,16 +212,20 @@ def test_bake_of_a_quad_in_tile_1_1_equals_the_same_quad_in_tile_0_0():
     assert inside[4:12, 4:12, :3].max() > 0.5 and inside[4:12, 4:12, 3].min() < 1.0
     np.testing.assert_array_equal(moved, inside)
 
-    # With a margin the covered texels stay the same; the margin is filled on the same ring but not with the
-    # same values (Cycles' EXTEND averages neighbours, the tiles take the nearest covered texel).
+    # With a margin, too, both maps give the same image.
     inside, moved = bake("Inside", 2), bake("Shifted", 2)
-    np.testing.assert_array_equal(moved[4:12, 4:12], inside[4:12, 4:12])
-    ring = np.zeros((16, 16), dtype=bool)
-    ring[2:14, 4:12] = ring[4:12, 2:14] = True
-    ring[4:12, 4:12] = False
-    assert (inside[ring, 3] > 0).all() and (moved[ring, 3] > 0).all()
-    np.testing.assert_array_equal(moved[4:12, 2], moved[4:12, 4])
-    np.testing.assert_array_equal(moved[[0, 1, 14, 15]], inside[[0, 1, 14, 15]])  # background beyond
+    np.testing.assert_array_equal(moved, inside)
+    # Column 3 (texel centre 0.5 texel left of the quad's edge u = 0.25) is read by bilinear lookups on the quad
+    # and holds the source value at the nearest edge point: source u = 0, i.e. halfway between source columns 7
+    # (REPEAT) and 0, on source row i - 4 exactly (target row i's centre is source texel height i - 4 + 1/2).
+    expected = 0.5 * (texture[0:8, 7] + texture[0:8, 0])
+    np.testing.assert_allclose(moved[4:12, 3], expected, atol=ONE_STEP)
+    # The corner texel (3, 3) is nearest to the quad's corner: source uv (0, 0), the mean of the four corner texels.
+    corner = texture[[0, 0, 7, 7], [0, 7, 0, 7]].mean(axis=0)
+    np.testing.assert_allclose(moved[3, 3], corner, atol=ONE_STEP)
+    # Column 2 is out of the quad's reach (1.5 texels): the margin copies the nearest written texel, column 3.
+    np.testing.assert_array_equal(moved[4:12, 2], moved[4:12, 3])
+    assert not moved[[0, 15]].any()  # 2 past the footprint ring: background, black, alpha 0 from the alpha bake
 
     after = {name: len(getattr(bpy.data, name)) for name in counts}
     assert after == dict(counts, images=counts["images"] + 4)
