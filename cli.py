@@ -95,7 +95,8 @@ def build_parser():
     size.add_argument("--resolution", type=int, default=None, help="explicit texture size in pixels")
     optimize.add_argument("--iterations", type=int, default=DEFAULTS.iterations, help="loss evaluations per triangle")
     optimize.add_argument("--screen-pixels", type=int, default=DEFAULTS.screen_pixels,
-                          help=f"per-triangle view size (default {DEFAULTS.screen_pixels})")
+                          help=f"per-triangle view size (default {DEFAULTS.screen_pixels}; grows to one pixel per "
+                               "input texel, up to 256)")
     optimize.add_argument("--margin", type=int, default=DEFAULTS.margin, help="island margin in pixels")
     optimize.add_argument("--workers", type=int, default=DEFAULTS.workers, help="worker processes (0: one per core)")
     optimize.add_argument("--seed", type=int, default=DEFAULTS.seed)

@@ -29,7 +29,9 @@ def settings_annotations():
             name="Evaluations", description="Loss evaluations per triangle (Bayesian optimization budget)",
             default=DEFAULTS.iterations, min=10, max=1000),
         "screen_pixels": IntProperty(
-            name="Screen Pixels", description="Side of the per-triangle orthographic view (paper App. A)",
+            name="Screen Pixels",
+            description=("Side of the per-triangle orthographic view (paper App. A); triangles spanning more "
+                         "texels get one pixel per texel, up to 256"),
             default=DEFAULTS.screen_pixels, min=16, max=256),
         "margin": IntProperty(
             name="Margin", description="Packing and bake margin in pixels of the new image",

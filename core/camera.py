@@ -19,7 +19,7 @@ import numpy as np
 
 from .mesh import check_mesh
 
-__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "TriangleCameras", "triangle_cameras"]
+__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "TriangleCameras", "triangle_cameras", "texel_matched_pixels"]
 
 #: Distance of the eye from the barycentre along ``N`` (Algorithm 1, line 7).
 EYE_DISTANCE = 500.0
@@ -167,3 +167,52 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
     for field in (centre, normal, right, up, bounds):
         field[~valid] = np.nan
     return TriangleCameras(faces, centre, right, up, normal, bounds, int(screen_pixels), valid)
+
+
+def texel_matched_pixels(V, F, uv, texture_shape, faces=None, *, minimum=64, maximum=256):
+    """Side of each triangle's view: App. A's ``minimum``, grown to one pixel per input texel across the view.
+
+    App. A's 64 px window spans the triangle's bounding box whatever its size in texels. A triangle that spans
+    more texels than that is minified, and bilinear lookups (Eq. 9) skip texels: shrinking it until it spans
+    about 64 texels changes nothing on such a screen, so the loss cannot see its detail go.
+
+    Parameters
+    ----------
+    V : (n, 3) array_like of float64
+    F : (m, 3) array_like of int64
+    uv : (m, 3, 2) array_like of float64
+        Input per-corner UVs.
+    texture_shape : tuple
+        ``(h, w)`` or ``(h, w, c)`` of the input texture.
+    faces : (k,) array_like of int, optional
+        Which triangles; all of them by default.
+    minimum, maximum : int, optional
+        Bounds of the side; ``maximum <= minimum`` gives App. A's fixed ``minimum``.
+
+    Returns
+    -------
+    (k,) ndarray of int64
+        ``clip(2 ceil(t / 2), minimum, max(minimum, maximum))`` with ``t`` the input texels across the window:
+        the window side times the triangle's texel density ``sqrt(texel area / surface area)``. Even, so that
+        GMSD's 2x2 pooling needs no padding; ``minimum`` for triangles without surface or UV area.
+
+    References
+    ----------
+    Sun et al. 2022, App. A (Algorithm 1), Eq. 9.
+    """
+    if int(minimum) != minimum or minimum < 1:
+        raise ValueError(f"minimum must be a positive integer, got {minimum}")
+    cameras = triangle_cameras(V, F, faces)
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.shape != (len(np.asarray(F)), 3, 2):
+        raise ValueError(f"uv must have shape (m, 3, 2) = {(len(np.asarray(F)), 3, 2)}, got {uv.shape}")
+    h, w = texture_shape[:2]
+    texel = uv[cameras.faces] * np.array([w, h], dtype=np.float64)
+    texel_area = 0.5 * np.abs(np.cross(texel[:, 1] - texel[:, 0], texel[:, 2] - texel[:, 0]))
+    a, b, c = (np.asarray(V, dtype=np.float64)[np.asarray(F)[cameras.faces, k]] for k in range(3))
+    surface_area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        across = cameras.size * np.sqrt(texel_area / surface_area)
+    across = np.where(np.isfinite(across), across, 0.0)
+    even = 2 * np.ceil(np.minimum(across, 1e9) / 2)
+    return np.clip(even, int(minimum), max(int(minimum), int(maximum))).astype(np.int64)

@@ -19,7 +19,8 @@ class OptimizeSettings:
     iterations : int
         Loss evaluations per triangle in the Bayesian optimization (the paper: 100, Fig. 15).
     screen_pixels : int
-        Side of the per-triangle orthographic view (App. A: 64).
+        Side of the per-triangle orthographic view (App. A: 64); a triangle spanning more input texels across
+        it gets one pixel per texel, up to 256 (``core.trianglewise.MAX_SCREEN_PIXELS``).
     margin : int
         Gap between packed islands and bake margin, in pixels of the new image.
     workers : int

@@ -17,6 +17,11 @@ Decisions (the paper leaves them open):
   a floor is needed for a box, and below ~0.1 a one-ring of typical size (tens of texels) collapses to a
   handful of texels, where the re-bake is decided by its regularization rather than the texture, and the
   mesh-wise stage has to squeeze triangles towards degeneracy.
+* View size: App. A's 64 px, grown to one pixel per input texel across the view, up to
+  ``MAX_SCREEN_PIXELS = 256`` (:func:`.camera.texel_matched_pixels`). A 64 px view of a triangle spanning
+  hundreds of texels skips texels: on wooden_bookshelf's large panels E stayed 0 (< 5e-5) down to
+  ``lambda = 0.3`` at 64 px and was 1e-2 to 4e-2 there at 256 px, and those panels were blurred in every
+  whole-mesh view. On models whose triangles span fewer than ~64 texels (spot) nothing changes.
 * ``alpha`` is treated as periodic with period ``pi/2`` by the GP kernel: a quarter turn of ``R`` about a
   texel centre maps the texel lattice onto itself, so ``E(alpha + pi/2) = E(alpha)`` exactly (:mod:`.loss`).
 * Two formulations. ``"constrained"`` (default) solves Eq. 7 directly: the cost ``lambda1 lambda2`` is
@@ -71,14 +76,17 @@ import types
 import numpy as np
 
 from . import bayesopt
+from .camera import texel_matched_pixels
 from .loss import prepare_triangles
 from .one_ring import one_ring_faces
 from .progress import run_generator
 
-__all__ = ["WorkerDiedError", "LAMBDA_MIN", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
-           "optimize_triangle", "iter_optimize_triangles", "optimize_triangles", "losses_at"]
+__all__ = ["WorkerDiedError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "TriangleOptimum", "TrianglewiseResult",
+           "finite_barrier", "sensitivity_weights", "optimize_triangle", "iter_optimize_triangles",
+           "optimize_triangles", "losses_at"]
 
 LAMBDA_MIN = 0.1
+MAX_SCREEN_PIXELS = 256
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
@@ -413,13 +421,33 @@ def _face_seed(seed, face):
     return int(np.random.SeedSequence([int(seed), int(face)]).generate_state(1)[0])
 
 
+def _prepared(state, faces):
+    """The problems of ``faces`` in that order, each with its own view size (``state["view_pixels"]``)."""
+    sizes = state["view_pixels"][faces]
+    problems = [None] * len(faces)
+    for size in np.unique(sizes):
+        rows = np.flatnonzero(sizes == size)
+        batch = prepare_triangles(state["V"], state["F"], state["uv"], state["luma"], np.asarray(faces)[rows],
+                                  screen_pixels=int(size), adjacency=state["adjacency"])
+        for row, problem in zip(rows, batch):
+            problems[row] = problem
+    return problems
+
+
+def _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, options):
+    """What the workers share: the mesh, the texture, the one-rings and every face's view size."""
+    view_pixels = np.zeros(len(F), dtype=np.int64)
+    view_pixels[faces] = texel_matched_pixels(V, F, uv, luma.shape, faces, minimum=screen_pixels,
+                                              maximum=max_screen_pixels)
+    return {"V": V, "F": F, "uv": uv, "luma": luma, "adjacency": one_ring_faces(F, V=V),
+            "view_pixels": view_pixels, "options": options}
+
+
 def _optimize_chunk(state, faces):
     """Worker body: prepare the chunk's problems once, optimize each face. Returns plain arrays."""
     options = state["options"]
-    batch = prepare_triangles(state["V"], state["F"], state["uv"], state["luma"], faces,
-                              screen_pixels=options["screen_pixels"], adjacency=state["adjacency"])
     rows = []
-    for face, problem in zip(faces, batch):
+    for face, problem in zip(faces, _prepared(state, faces)):
         found = optimize_triangle(problem, epsilon=options["epsilon"], evaluations=options["evaluations"],
                                   lambda_min=options["lambda_min"], formulation=options["formulation"],
                                   backend=options["backend"], seed=_face_seed(options["seed"], face))
@@ -430,11 +458,9 @@ def _optimize_chunk(state, faces):
 
 def _losses_chunk(state, faces):
     """Worker body for :func:`losses_at`: E of the given deformation rows."""
-    batch = prepare_triangles(state["V"], state["F"], state["uv"], state["luma"], faces,
-                              screen_pixels=state["options"]["screen_pixels"], adjacency=state["adjacency"])
     params = state["options"]["params"]
     out = np.empty(len(faces))
-    for row, (face, problem) in enumerate(zip(faces, batch)):
+    for row, (face, problem) in enumerate(zip(faces, _prepared(state, faces))):
         out[row] = problem.evaluate(params[face])[0] if np.all(np.isfinite(params[face])) else np.inf
     return np.asarray(faces), out
 
@@ -599,8 +625,8 @@ def _check_mesh(V, F, uv, luma, faces):
 
 
 def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
-                            lambda_min=LAMBDA_MIN, formulation=None, backend="fast", workers=0, seed=0, faces=None,
-                            chunk_size=16):
+                            max_screen_pixels=MAX_SCREEN_PIXELS, lambda_min=LAMBDA_MIN, formulation=None,
+                            backend="fast", workers=0, seed=0, faces=None, chunk_size=16):
     """Generator form of :func:`optimize_triangles`: yields ``(done, total)`` faces, returns the result.
 
     Use ``result = yield from iter_optimize_triangles(...)`` in a pipeline generator, or drive it one step per
@@ -613,10 +639,9 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
         raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
     total = len(faces)
-    state = {"V": V, "F": F, "uv": uv, "luma": luma, "adjacency": one_ring_faces(F, V=V),
-             "options": {"epsilon": float(epsilon), "evaluations": int(evaluations),
-                         "screen_pixels": int(screen_pixels), "lambda_min": float(lambda_min),
-                         "formulation": formulation, "backend": backend, "seed": int(seed)}}
+    state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels,
+                   {"epsilon": float(epsilon), "evaluations": int(evaluations), "lambda_min": float(lambda_min),
+                    "formulation": formulation, "backend": backend, "seed": int(seed)})
     row_of = {int(face): row for row, face in enumerate(faces)}
     params = np.empty((total, 4))
     loss, w_R, w_S = np.empty(total), np.empty(total), np.empty(total)
@@ -635,9 +660,9 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
                               float(lambda_min), formulation, backend)
 
 
-def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64, lambda_min=LAMBDA_MIN,
-                       formulation=None, backend="fast", workers=0, seed=0, faces=None, chunk_size=16,
-                       progress=None):
+def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
+                       max_screen_pixels=MAX_SCREEN_PIXELS, lambda_min=LAMBDA_MIN, formulation=None, backend="fast",
+                       workers=0, seed=0, faces=None, chunk_size=16, progress=None):
     """Triangle-wise stage: optimal deformation and sensitivity weights of every triangle.
 
     Parameters
@@ -654,6 +679,10 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
         Loss evaluations of the optimization per triangle (the paper: 100); the weights add 24.
     screen_pixels : int, optional
         Side of the per-triangle view (App. A: 64).
+    max_screen_pixels : int, optional
+        A triangle spanning more input texels than ``screen_pixels`` across its view gets one pixel per texel,
+        up to this side (:func:`.camera.texel_matched_pixels`); ``screen_pixels`` or less keeps App. A's fixed
+        size.
     lambda_min : float, optional
         Lower bound of the stretch eigenvalues.
     formulation : {"constrained", "barrier"}, optional
@@ -680,7 +709,8 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
     Sun et al. 2022, Sec. 4.1, Eq. 7, 12-14, 17.
     """
     stage = iter_optimize_triangles(V, F, uv, luma, epsilon=epsilon, evaluations=evaluations,
-                                    screen_pixels=screen_pixels, lambda_min=lambda_min, formulation=formulation,
+                                    screen_pixels=screen_pixels, max_screen_pixels=max_screen_pixels,
+                                    lambda_min=lambda_min, formulation=formulation,
                                     backend=backend, workers=workers, seed=seed, faces=faces,
                                     chunk_size=chunk_size)
     return run_generator(stage, progress)
@@ -697,7 +727,8 @@ def _params_from_jacobians(J):
     return np.column_stack([alpha, eigenvalues[:, 1], eigenvalues[:, 0], beta])
 
 
-def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, faces=None, workers=1, chunk_size=64):
+def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
+              workers=1, chunk_size=64):
     """Triangle-wise loss E of a new UV map, each triangle measured with its own deformation.
 
     The deformation of triangle ``i`` is the affine map from its input UVs to ``new_uv`` (in texel units of
@@ -709,7 +740,8 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, faces=None, workers=1
         As in :func:`optimize_triangles` (``uv`` the input UVs the texture belongs to).
     new_uv : (m, 3, 2) array_like
         New UVs per corner in the input's UV units (e.g. the mesh-wise result before packing).
-    screen_pixels : int, optional
+    screen_pixels, max_screen_pixels : int, optional
+        The views, as in :func:`optimize_triangles`.
     faces : (k,) array_like of int, optional
     workers : int, optional
         As in :func:`optimize_triangles` (default in this process).
@@ -736,8 +768,7 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, faces=None, workers=1
     params = np.full((len(F), 1, 4), np.inf)
     if valid.any():
         params[valid, 0] = _params_from_jacobians(J[valid])
-    state = {"V": V, "F": F, "uv": uv, "luma": luma, "adjacency": one_ring_faces(F, V=V),
-             "options": {"screen_pixels": int(screen_pixels), "params": params}}
+    state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, {"params": params})
     out = np.empty(len(faces))
     row_of = {int(face): row for row, face in enumerate(faces)}
     with contextlib.closing(_run_chunks("losses", state, faces, int(workers), int(chunk_size))) as chunks:

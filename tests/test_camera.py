@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from perceptual_uv.core.camera import CLIP_FAR, CLIP_NEAR, EYE_DISTANCE, triangle_cameras
+from perceptual_uv.core.camera import CLIP_FAR, CLIP_NEAR, EYE_DISTANCE, triangle_cameras, texel_matched_pixels
 
 # a = (2, 0, 0), b = (-1, 1, 0), c = (-1, -1, 0): barycentre at the origin, a - C along +x, normal +z.
 # Algorithm 1 by hand: R = (1, 0, 0), U = N x R = (0, 1, 0); projections a (2, 0), b (-1, 1), c (-1, -1);
@@ -98,3 +98,27 @@ def test_degenerate_triangle_is_invalid_not_an_error():
 def test_validation(kwargs, message):
     with pytest.raises(ValueError, match=message):
         triangle_cameras(**kwargs)
+
+
+def test_texel_matched_pixels_by_hand():
+    # Three copies of the right triangle with unit legs (surface area 1/2); App. A's window over it is the
+    # hypotenuse sqrt(2) wide. UV legs 0.1, 0.25 and 0.03 of a 1024 x 1024 texture: 102.4, 256 and 30.72 texels
+    # per unit length, so sqrt(2) times that across the window: 144.8 -> 146 (even), 362 -> 256 (the maximum),
+    # 43.4 -> 64 (the minimum).
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]] * 3, dtype=float) + np.repeat(np.arange(3) * 2.0, 3)[:, None]
+    F = np.arange(9).reshape(3, 3)
+    legs = np.array([0.1, 0.25, 0.03])
+    uv = legs[:, None, None] * np.array([[0, 0], [1, 0], [0, 1]], dtype=float)
+    np.testing.assert_array_equal(texel_matched_pixels(V, F, uv, (1024, 1024)), [146, 256, 64])
+    np.testing.assert_array_equal(texel_matched_pixels(V, F, uv, (1024, 1024), [2, 0]), [64, 146])
+    # App. A's fixed size when the maximum does not exceed the minimum
+    np.testing.assert_array_equal(texel_matched_pixels(V, F, uv, (1024, 1024), maximum=64), [64, 64, 64])
+    # A 512 x 1024 (h x w) texture halves the texel area: 144.8 / sqrt(2) = 102.4 -> 104
+    assert texel_matched_pixels(V, F, uv, (512, 1024, 3))[0] == 104
+    # No UV area, or no surface: the minimum
+    flat = uv.copy()
+    flat[0, 2] = flat[0, 1]
+    assert texel_matched_pixels(V, F, flat, (1024, 1024))[0] == 64
+    V_line = V.copy()
+    V_line[2] = V_line[1]
+    assert texel_matched_pixels(V_line, F, uv, (1024, 1024))[0] == 64

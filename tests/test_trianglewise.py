@@ -248,6 +248,27 @@ def test_losses_at_equals_problem_loss_of_the_jacobian():
     assert got == pytest.approx(expected, rel=1e-9, abs=1e-12)
 
 
+def test_triangles_spanning_many_texels_are_seen_at_one_pixel_per_texel():
+    # Two triangles of the unit square over a whole 256 x 256 texture: sqrt(2) * 256 = 362 texels across App.
+    # A's window, so the view grows to the 256 px maximum; losses_at must measure E on that view.
+    V, F, uv = grid_mesh(cells=1, uv_low=0.0, uv_high=1.0)
+    y, x = np.mgrid[0:256, 0:256] + 0.5
+    texture = 0.5 + 0.25 * np.sin(2 * np.pi * x / 3.0) * np.cos(2 * np.pi * y / 5.0)
+    params = np.array([0.0, 0.5, 0.5, 0.0])
+    R, S = jacobian(params)
+    new_uv = uv.copy()
+    centre = uv[0].mean(axis=0)
+    new_uv[0] = (uv[0] - centre) @ (R @ S).T + centre
+    grown = tw.losses_at(V, F, uv, texture, new_uv, faces=[0])[0]
+    fixed = tw.losses_at(V, F, uv, texture, new_uv, faces=[0], max_screen_pixels=64)[0]
+    assert grown == pytest.approx(triangle_problem(V, F, uv, texture, 0, screen_pixels=256).evaluate(params)[0],
+                                  rel=1e-9)
+    assert fixed == pytest.approx(triangle_problem(V, F, uv, texture, 0).evaluate(params)[0], rel=1e-9)
+    # Halving the texels of a 3-texel pattern blurs it: 1.1e-2 at 256 px. At 64 px the lookups skip most texels
+    # and the re-bake reproduces that screen exactly (8e-17): the loss cannot see the detail go.
+    assert fixed < 1e-9 and grown > 5e-3
+
+
 def test_python_executable_found_when_running_inside_blender(monkeypatch):
     monkeypatch.setattr(sys, "executable", "/opt/blender/blender")
     found = tw._python_executable()
