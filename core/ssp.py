@@ -409,6 +409,12 @@ def _largest_safe_step(U, dU, orientation):
     return t_max
 
 
+def _has_uv_area(uv):
+    """(m,) bool: the UV triangle's area exceeds 1e-10 of its longest edge squared (else it counts as collapsed)."""
+    longest2 = np.max([((uv[:, (j + 1) % 3] - uv[:, j]) ** 2).sum(axis=1) for j in range(3)], axis=0)
+    return np.abs(_det(_uv_edges(uv))) > 1e-10 * longest2
+
+
 def solve_ssp(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, channels="all", max_iterations=1000,
               tol=1e-9, history_size=10, progress=None):
     """Signal-specialized UV map: minimize the L2 signal stretch from the input UVs, keeping its cuts.
@@ -449,10 +455,10 @@ def solve_ssp(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, cha
 
     Notes
     -----
-    Triangles with no surface area or no input UV area are left out of the energy (the signal stretch of a
-    collapsed UV triangle is unbounded, so the input would be an infinite start, and such a triangle holds no
-    texels of the input anyway); their corners still move with their chart, and ``energy_history`` is the
-    energy of the other triangles.
+    Triangles with no surface area or no input UV area (at most 1e-10 of the longest UV edge squared, as in
+    :func:`ssp_targets`) are left out of the energy (the signal stretch of a collapsed UV triangle is unbounded,
+    so the input would be an infinite start, and such a triangle holds no texels of the input anyway); their
+    corners still move with their chart, and ``energy_history`` is the energy of the other triangles.
 
     References
     ----------
@@ -471,7 +477,7 @@ def solve_ssp(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, cha
     orientation = np.sign(_det(U_in))
     # A triangle the input gives no UV area has no texels to redistribute and an infinite energy at the start:
     # like a degenerate triangle of the mesh-wise stage it is left out, and its corners move with its chart.
-    valid = (area > 0) & (orientation != 0)
+    valid = (area > 0) & _has_uv_area(uv)
     if not valid.any():
         raise ValueError("no triangle has both surface area and UV area")
     corners = topology.corner_vertex[valid]
@@ -632,9 +638,7 @@ def ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, c
     V, F, uv, X, area, metric = _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, "ssp_targets")
     m = F.shape[0]
     U_in = _uv_edges(uv)
-    det_in = _det(U_in)
-    longest2 = np.max([((uv[:, (j + 1) % 3] - uv[:, j]) ** 2).sum(axis=1) for j in range(3)], axis=0)
-    valid = (area > 0) & (np.abs(det_in) > 1e-10 * longest2)
+    valid = (area > 0) & _has_uv_area(uv)
 
     params = np.zeros((m, 4))
     params[:, 1:3] = 1.0
