@@ -283,7 +283,7 @@ def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel)
 
 
 def _extend_margin(pixels, covered, margin):
-    """Cycles' EXTEND margin: uncovered texels within ``margin`` of a covered one take its value (in place).
+    """A margin like Cycles' EXTEND: uncovered texels within ``margin`` of a covered one take its value (in place).
 
     Distances wrap around the image borders: an island reaching an edge here continues on the other side under
     REPEAT, and bilinear lookups across the edge read the margin there. Measured on spot at c_r = 0.3: a margin

@@ -194,7 +194,7 @@ def test_bake_of_a_quad_in_tile_1_1_equals_the_same_quad_in_tile_0_0():
     for name, corners in (("Inside", inner), ("Shifted", inner + 1.0)):
         obj.data.uv_layers.new(name=name).uv.foreach_set("vector", corners.ravel())
     shifted = read_uv(obj, "Shifted")
-    # A map in the unit square, even a float step past it, takes the single-bake path; the shifted one does not.
+    # A map in the unit square, even a float step past it, is baked once, as tile (0, 0); the shifted one as (1, 1).
     obj.data.uv_layers.new(name="Slop").uv.foreach_set("vector", (square * (1 + 1e-6)).ravel())
     assert [_touched_tiles([obj], name, 16) for name in ("UVMap", "Slop", "Shifted")] == [[(0, 0)], [(0, 0)], [(1, 1)]]
     obj.data.uv_layers.remove(obj.data.uv_layers["Slop"])
