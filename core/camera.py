@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .charts import signed_uv_areas
 from .mesh import check_mesh
 
 __all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "TriangleCameras", "triangle_cameras", "texel_matched_pixels"]
@@ -207,12 +208,11 @@ def texel_matched_pixels(V, F, uv, texture_shape, faces=None, *, minimum=64, max
     if uv.shape != (len(np.asarray(F)), 3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2) = {(len(np.asarray(F)), 3, 2)}, got {uv.shape}")
     h, w = texture_shape[:2]
-    texel = uv[cameras.faces] * np.array([w, h], dtype=np.float64)
-    texel_area = 0.5 * np.abs(np.cross(texel[:, 1] - texel[:, 0], texel[:, 2] - texel[:, 0]))
+    texel_area = np.abs(signed_uv_areas(uv[cameras.faces])) * w * h
     a, b, c = (np.asarray(V, dtype=np.float64)[np.asarray(F)[cameras.faces, k]] for k in range(3))
     surface_area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         across = cameras.size * np.sqrt(texel_area / surface_area)
     across = np.where(np.isfinite(across), across, 0.0)
-    even = 2 * np.ceil(np.minimum(across, 1e9) / 2)
+    even = 2 * np.ceil(across / 2)
     return np.clip(even, int(minimum), max(int(minimum), int(maximum))).astype(np.int64)

@@ -55,7 +55,7 @@ def _closest_barycentric(px, py, ax, ay, bx, by, cx, cy):
 
 
 @njit
-def _footprint_kernel(corners, covered, count_only, out_texel, out_face, out_distance, out_bary):
+def _footprint_kernel(corners, covered, count_only, out_texel, out_face, out_squared_distance, out_bary):
     """Count (``count_only``) or list the (uncovered texel, face) pairs closer than one texel."""
     height, width = covered.shape
     found = 0
@@ -85,7 +85,7 @@ def _footprint_kernel(corners, covered, count_only, out_texel, out_face, out_dis
                 if not count_only:
                     out_texel[found] = row * width + column
                     out_face[found] = f
-                    out_distance[found] = qx * qx + qy * qy
+                    out_squared_distance[found] = qx * qx + qy * qy
                     out_bary[found, 0] = u
                     out_bary[found, 1] = v
                     out_bary[found, 2] = w

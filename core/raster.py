@@ -255,10 +255,11 @@ def sample_bilinear(texture, points):
     -------
     (p,) or (p, c) ndarray of float64
     """
-    texture = np.asarray(texture, dtype=np.float64)
+    texture = np.asarray(texture)
     texels, weights = bilinear_weights(points, texture.shape)
     flat = texture.reshape(texture.shape[0] * texture.shape[1], -1)
-    values = np.einsum("pk,pkc->pc", weights, flat[texels])
+    # only the texels read are widened to float64: a 4096^2 RGBA float32 texture would otherwise be copied whole
+    values = np.einsum("pk,pkc->pc", weights, flat[texels].astype(np.float64))
     return values[:, 0] if texture.ndim == 2 else values
 
 
