@@ -3,11 +3,12 @@
 For triangle ``i`` and a deformation ``(alpha, lambda1, lambda2, beta)`` (Eq. 13-14):
 
 1. camera ``C_i`` of App. A (:mod:`.camera`), screen ``n x n`` (64 by default);
-2. reference render (Eq. 1, 8-9): the one-ring of ``i`` (triangles sharing a vertex, welded by position)
-   with its input UVs and the input texture at its own resolution, luma only (:mod:`.raster`);
-3. deformed UVs: every one-ring triangle's texel-space UVs mapped by ``x -> A (x - c) + c`` with
+2. reference render (Eq. 1, 8-9): the one-ring of ``i`` (triangles sharing a vertex, welded by position) and
+   the further faces connected to it that reach into the window (:func:`.one_ring.window_faces`), with
+   their input UVs and the input texture at its own resolution, luma only (:mod:`.raster`);
+3. deformed UVs: every drawn triangle's texel-space UVs mapped by ``x -> A (x - c) + c`` with
    ``A = R(alpha) S(lambda1, lambda2, beta)`` (:func:`.deformation.jacobian`), i.e. ``phi~`` of Eq. 6 applied
-   to the whole one-ring. The paper sets the offset ``t_i = 0``; the offset does not change the area and
+   to every drawn triangle. The paper sets the offset ``t_i = 0``; the offset does not change the area and
    is free, so we fix ``c``: the texel centre nearest to the UV barycentre of triangle ``i``. Fixing a
    point of the triangle keeps the texel phase under the triangle stable while ``A`` varies (with ``t = 0``
    a triangle far from the UV origin would slide across many texels for a small change of ``A``), and
@@ -15,9 +16,11 @@ For triangle ``i`` and a deformation ``(alpha, lambda1, lambda2, beta)`` (Eq. 13
    a texel centre maps the texel lattice onto itself. ``A`` acts on texel units ``(u * w, v * h)`` so
    pixels are square for non-square textures too. Only UVs change: the surface point each pixel sees is
    cached, and only the bilinear weights are recomputed per evaluation.
-4. re-bake (Eq. 11) of the texels the deformed one-ring reads, by least squares (:mod:`.bake_lsq`), at the
+4. re-bake (Eq. 11) of the texels the deformed triangles read, by least squares (:mod:`.bake_lsq`), at the
    same resolution, and render again (Eq. 2);
-5. ``E = GMSD(reference, deformed)`` (Eq. 3, 5; :mod:`.gmsd`); uncovered pixels are 0 in both renders.
+5. ``E = GMSD(reference, deformed)`` (Eq. 3, 5) over the covered part of the screen
+   (:func:`.gmsd.covered_gmsd`): uncovered pooling cells continue the nearest covered one, so the edge of the
+   drawn faces is no step in either render, and the deviation is taken over covered cells only.
 
 Performance (``bench/loss.py``; 2 shared cores, so ranges over runs): one evaluation is one pass over the
 covered pixels (deform, bilinear weights, pixels pooled per texel cell into the normal equations), an
@@ -27,7 +30,10 @@ identity (median 300-500 touched texels); 30x faster than the numpy/scipy refere
 about ``T * W^2`` for ``T`` touched texels in a footprint ``W`` texels wide, so triangles whose texels are
 about the size of a screen pixel (several thousand texels in view) cost 5-15 ms near the identity; a nested
 dissection ordering would cut that. Preparation: 0.4-0.9 ms per triangle. The per-triangle cache holds
-arrays only (picklable; the numba kernels are module functions), ~165 KB per triangle at 64 px.
+arrays only (picklable; the numba kernels are module functions), ~165 KB per triangle at 64 px. Those figures
+predate the window faces (step 2): a sliver's view now holds the panel around it instead of a thin line, so it
+costs like a well-shaped triangle's of the same window; the whole triangle-wise stage on wooden_bookshelf
+(2 workers) went from 131 s to 499 s, on spot it stayed at about 30 s.
 """
 import dataclasses
 from dataclasses import dataclass
@@ -39,8 +45,8 @@ from .bake_lsq import (DEFAULT_RIDGE, _apply_renumber, _band_cholesky_solve, _en
                        _envelope_first, _first_occurrence_ids, _group_by_component, _render_ids,
                        _solve_normal_equations)
 from .camera import triangle_cameras
-from .gmsd import GMSD_C, _gmsd_padded_pooled_kernel, _pooled_gradient_kernel, luma as _to_luma
-from .one_ring import one_ring_faces
+from .gmsd import GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, covered_gmsd, luma as _to_luma
+from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
 from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
 
 __all__ = ["TriangleProblem", "TriangleBatch", "texture_luma", "triangle_problem", "prepare_triangles",
@@ -159,7 +165,8 @@ def _prepare_kernel(V, F, uv, draw, origin, right, up, normal, bounds, n, luma, 
     reference = _sample_luma_kernel(luma, points)
     m = n // 2
     pooled_index = np.empty(count, np.int64)
-    image = np.zeros((n, n))
+    sums = np.zeros((m + 2) * (m + 2))
+    counts = np.zeros((m + 2) * (m + 2))
     box = np.zeros(4)
     if count:
         box[0] = box[1] = points[0, 0]
@@ -168,12 +175,17 @@ def _prepare_kernel(V, F, uv, draw, origin, right, up, normal, bounds, n, luma, 
         i = pixel[p] // n
         j = pixel[p] - i * n
         pooled_index[p] = (i // 2 + 1) * (m + 2) + j // 2 + 1
-        image[i, j] = reference[p]
+        sums[pooled_index[p]] += reference[p]
+        counts[pooled_index[p]] += 1.0
         box[0] = min(box[0], points[p, 0])
         box[1] = max(box[1], points[p, 0])
         box[2] = min(box[2], points[p, 1])
         box[3] = max(box[3], points[p, 1])
-    _pooled_gradient_kernel(image, gradient)
+    flat = np.empty(m * m)
+    _covered_gradient_kernel(sums, counts, m, flat, np.empty((m + 2) * (m + 2)), np.empty((m + 2) * (m + 2), np.int64))
+    for i in range(m):
+        for j in range(m):
+            gradient[i, j] = flat[i * m + j]
     # Reference values that differ beyond round-off (equal texels v give v * (sum of weights), within a few
     # ulps of v) prove that different texels are readable: skip the disk scan.
     constant = True
@@ -555,8 +567,14 @@ def _evaluate_kernel(params, points, pooled_index, box, reference, reference_gra
     m = reference_gradient.shape[0]
     count = points.shape[0]
     rendered = np.empty(count)
-    padded = np.empty((m + 2) * (m + 2))
-    gms = np.empty(m * m)
+    size = (m + 2) * (m + 2)
+    sums = np.empty(size)
+    counts = np.zeros(size)
+    for p in range(count):
+        counts[pooled_index[p]] += 1.0
+    flat_gradient = reference_gradient.copy().reshape(m * m)
+    value = np.empty(size)
+    queue = np.empty(size, np.int64)
     for s in range(k):
         alpha, l1, l2, beta = params[s, 0], params[s, 1], params[s, 2], params[s, 3]
         ca, sa = np.cos(alpha), np.sin(alpha)
@@ -574,10 +592,10 @@ def _evaluate_kernel(params, points, pooled_index, box, reference, reference_gra
             ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1], w, h)
             values = _solve_normal_equations(ids, weights, reference, texel.shape[0], ridge)
             rendered[:] = _render_ids(ids, weights, values)
-        padded[:] = 0.0
+        sums[:] = 0.0
         for p in range(count):
-            padded[pooled_index[p]] += 0.25 * rendered[p]
-        out[s] = _gmsd_padded_pooled_kernel(padded.reshape(m + 2, m + 2), reference_gradient, c_gmsd, gms)
+            sums[pooled_index[p]] += rendered[p]
+        out[s] = _covered_gmsd_kernel(sums, counts, m, flat_gradient, c_gmsd, value, queue)
     return out
 
 
@@ -602,11 +620,12 @@ class TriangleProblem:
     reference : (p,) ndarray
         Reference render (luma) at the covered pixels.
     reference_gradient : (n/2, n/2) ndarray
-        Gradient magnitude of the pooled reference screen (GMSD's fixed half).
+        Gradient magnitude of the pooled reference screen over its covered cells, continued into the
+        uncovered ones (:func:`.gmsd.covered_gmsd`; the fixed half of E).
     uv_area : float
         Area of the triangle in texel units, ``|triangle^t| * w * h``.
     is_constant : bool
-        True when every texel the one-ring can read under any deformation with ``lambda1, lambda2 <= 1`` has
+        True when every texel the drawn faces can read under any deformation with ``lambda1, lambda2 <= 1`` has
         the same luma; then ``E == 0`` exactly for all such deformations (and :meth:`evaluate` returns 0).
     ridge : float
         Tikhonov weight of the re-bake.
@@ -688,11 +707,12 @@ class TriangleProblem:
 
 def _evaluate_reference(problem, params):
     """Plain numpy/scipy E (sparse normal equations, numpy GMSD), for tests of the fused kernel."""
-    from .gmsd import gmsd
-
     params = _check_params(params)
     reference = problem.reference_image()
-    return np.array([gmsd(reference, problem.deformed_image(row)) for row in params])
+    covered = np.zeros(problem.screen_pixels ** 2, dtype=bool)
+    covered[problem.pixel] = True
+    covered = covered.reshape(reference.shape)
+    return np.array([covered_gmsd(reference, problem.deformed_image(row), covered) for row in params])
 
 
 @dataclass(frozen=True)
@@ -814,9 +834,14 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
     pixels, points, references, pooled = [], [], [], []
     offsets = np.zeros(k + 1, np.int64)
     empty_draw = np.zeros(0, np.int64)
+    stamp = np.zeros(len(F), np.int64)
     for row, f in enumerate(faces):
         centres[row] = _centre_texel(uv[f], w, h)
-        draw = ring[ring_offsets[f]:ring_offsets[f + 1]] if cameras.valid[row] else empty_draw
+        draw = empty_draw
+        if cameras.valid[row]:
+            frame = np.stack([cameras.origin[row], cameras.right[row], cameras.up[row], cameras.normal[row]])
+            draw = _window_faces_kernel(V, F, ring_offsets, ring, int(f), frame, cameras.bounds[row],
+                                        WINDOW_FACE_LIMIT, stamp, row + 1)
         pixel, point, reference, pooled_index, boxes[row], constant[row] = _prepare_kernel(
             V, F, uv, draw, cameras.origin[row], cameras.right[row], cameras.up[row], cameras.normal[row],
             cameras.bounds[row], n, luma, centres[row], gradients[row])
@@ -844,7 +869,8 @@ def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, 
 
 
 def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=None):
-    """Reference render of one triangle's one-ring with its App. A camera, all texture channels.
+    """Reference render of the faces drawn for one triangle (:func:`.one_ring.window_faces`) with its App. A
+    camera, all texture channels.
 
     Parameters
     ----------
@@ -878,7 +904,9 @@ def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=Non
         raise ValueError(f"face {face} outside 0..{len(F) - 1}")
     offsets, ring = one_ring_faces(F, V=V) if adjacency is None else adjacency
     camera = triangle_cameras(V, F, [face], screen_pixels=screen_pixels)
-    raster = rasterize(V, F, ring[offsets[face]:offsets[face + 1]], camera)
+    draw = window_faces(V, F, (offsets, ring), face, origin=camera.origin[0], right=camera.right[0],
+                        up=camera.up[0], normal=camera.normal[0], bounds=camera.bounds[0])
+    raster = rasterize(V, F, draw, camera)
     values = sample_bilinear(texture, texel_coordinates(uv, raster.face, raster.bary, texture.shape))
     n = camera.screen_pixels
     image = np.zeros((n * n,) + texture.shape[2:])

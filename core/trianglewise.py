@@ -2,8 +2,8 @@
 
 For triangle ``i`` the deformation ``grad phi_i = R(alpha) V(beta) diag(lambda1, lambda2) V(beta)^T``
 (Eq. 13-14) scales the triangle's texel area by ``lambda1 * lambda2``; the loss ``E(alpha, lambda1, lambda2,
-beta)`` is the GMSD between the reference render of the one-ring and its render after re-baking the deformed
-texels (:mod:`.loss`). The paper solves Eq. 7,
+beta)`` is the GMSD between the reference render of the faces around it and their render after re-baking the
+deformed texels (:mod:`.loss`). The paper solves Eq. 7,
 
     min lambda1 lambda2 |tri_i^t|   subject to   E <= epsilon,
 
@@ -51,7 +51,7 @@ Decisions (the paper leaves them open):
   functions); ``w_S`` over 16 points of a scrambled Sobol sequence (fixed seed, the same for every triangle,
   so weights of different triangles are comparable) in ``[lambda_min, 1]^2 x [0, pi/2)``. These 24
   evaluations are counted in ``evaluations``.
-* Constant one-rings (``problem.is_constant``: every texel any allowed deformation can read has the same
+* Constant views (``problem.is_constant``: every texel any allowed deformation can read has the same
   luma, so ``E = 0`` exactly) skip the optimization: ``(0, lambda_min, lambda_min, 0)``, ``E = 0``,
   ``w_R = w_S = 0``, no evaluation.
 * Determinism: each triangle's optimizer is seeded by ``(seed, face)``, so results do not depend on the
@@ -358,11 +358,11 @@ class TrianglewiseResult:
     w_R, w_S : (k,) float64 ndarray
         Sensitivity weights (Eq. 17), non-negative.
     evaluations : (k,) int64 ndarray
-        Loss evaluations used per face (0 for constant one-rings).
+        Loss evaluations used per face (0 for constant views).
     feasible : (k,) bool ndarray
         ``loss <= epsilon``.
     is_constant : (k,) bool ndarray
-        Faces skipped because their one-ring texture is constant.
+        Faces skipped because the texture their view reads is constant.
     epsilon, lambda_min : float
     formulation, backend : str
 
@@ -400,7 +400,7 @@ class TrianglewiseResult:
         Notes
         -----
         Eq. 17 measures how the loss reacts; the cost of Eq. 7 (texel area) appears in the mesh-wise stage only
-        through the target stretch ``S_bar``. Where the loss does not react at all (constant one-rings, 47 % of
+        through the target stretch ``S_bar``. Where the loss does not react at all (constant views, 47 % of
         the bundled spot's faces) or barely (smooth texture, a median ``w_S`` of 5e-6 there), Eq. 19 leaves
         the triangle free: it keeps the input's size while the detailed triangles shrink to their targets, so
         the texels go to the triangles that need them least. The floor makes every optimized triangle pull

@@ -20,7 +20,7 @@ bpy = pytest.importorskip("bpy")
 from perceptual_uv.bridge import mesh_io  # noqa: E402
 from perceptual_uv.bridge.render import WorkbenchRenderer, triangle_view  # noqa: E402
 from perceptual_uv.core.loss import render_reference  # noqa: E402
-from perceptual_uv.core.one_ring import one_ring_faces  # noqa: E402
+from perceptual_uv.core.one_ring import one_ring_faces, window_faces  # noqa: E402
 from perceptual_uv.core.raster import rasterize, sample_bilinear  # noqa: E402
 
 pytestmark = pytest.mark.bpy
@@ -67,7 +67,8 @@ def test_operator_reference_matches_workbench_render(model, shared_models_dir, e
         for face in faces:
             reference, covered, camera = render_reference(mesh.V, mesh.F, mesh.uv, rgb, face, screen_pixels=n,
                                                           adjacency=adjacency)
-            ring = neighbours[offsets[face]:offsets[face + 1]]
+            ring = window_faces(mesh.V, mesh.F, adjacency, face, origin=camera.origin[0], right=camera.right[0],
+                                up=camera.up[0], normal=camera.normal[0], bounds=camera.bounds[0])
             raster = rasterize(mesh.V, mesh.F, ring, camera)
             face_of_pixel = np.full(n * n, -1, dtype=np.int64)
             face_of_pixel[raster.pixel] = raster.face

@@ -6,7 +6,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from perceptual_uv.core.gmsd import (GMSD_C, _gmsd_gradient_kernel, _pooled_gradient_kernel, gmsd,
+from perceptual_uv.core.gmsd import (GMSD_C, _gmsd_gradient_kernel, _pooled_gradient_kernel, covered_gmsd, gmsd,
                                      gmsd_from_gradient, gradient_magnitude, luma, pool2)
 
 REFERENCE = pathlib.Path(__file__).resolve().parent / "reference"
@@ -106,3 +106,55 @@ def test_fused_padded_kernel_matches_numpy():
     padded = np.pad(pool2(dist), 1)
     value = _gmsd_padded_pooled_kernel(padded, gradient_magnitude(pool2(ref)), GMSD_C, np.empty(64))
     assert value == pytest.approx(gmsd(ref, dist), abs=1e-15)
+
+
+def _prewitt_gms_std(extended, reference_extended, rows, cols, c=GMSD_C):
+    """GMS deviation at pooled cells (rows, cols) of two border-padded pooled grids, written out by hand."""
+    def magnitude(grid, i, j):  # (i, j) inner cell; grid has a one-cell border
+        window = grid[i:i + 3, j:j + 3]
+        gx = (window[:, 0].sum() - window[:, 2].sum()) / 3.0
+        gy = (window[0].sum() - window[2].sum()) / 3.0
+        return np.hypot(gx, gy)
+    gms = []
+    for i in rows:
+        for j in cols:
+            mr, md = magnitude(reference_extended, i, j), magnitude(extended, i, j)
+            gms.append((2 * mr * md + c) / (mr * mr + md * md + c))
+    return float(np.std(gms))
+
+
+def test_covered_gmsd_of_identical_or_flat_screens_is_zero():
+    rng = np.random.default_rng(3)
+    image = rng.random((8, 8))
+    covered = np.zeros((8, 8), bool)
+    covered[2:6, 1:7] = True
+    assert covered_gmsd(image, image, covered) == 0.0
+    # Two different flat patches on an empty background: plain GMSD sees the two different steps to 0 at the
+    # patch's edge, the covered part has no gradient in either screen.
+    flat_a, flat_b = np.where(covered, 0.5, 0.0), np.where(covered, 0.6, 0.0)
+    assert gmsd(flat_a, flat_b) > 0
+    assert covered_gmsd(flat_a, flat_b, covered) == 0.0
+    # A cell with one covered pixel takes that pixel's value, not a quarter of it.
+    one = np.zeros((4, 4), bool)
+    one[0, 0] = True
+    assert covered_gmsd(np.full((4, 4), 0.2), np.full((4, 4), 0.9), one) == 0.0
+    assert covered_gmsd(image, 1 - image, np.zeros((8, 8), bool)) == 0.0
+
+
+def test_covered_gmsd_of_full_and_half_screens_by_hand():
+    rng = np.random.default_rng(4)
+    reference, distorted = rng.random((8, 8)), rng.random((8, 8))
+    # Fully covered: the pooled screens continue at the border (edge padding), deviation over all 16 cells.
+    full = np.ones((8, 8), bool)
+    expected = _prewitt_gms_std(np.pad(pool2(distorted), 1, mode="edge"), np.pad(pool2(reference), 1, mode="edge"),
+                                range(4), range(4))
+    assert covered_gmsd(reference, distorted, full) == pytest.approx(expected, abs=1e-14)
+    # Left half covered (pooled columns 0-1): each row continues its last covered cell to the right, the
+    # border rows repeat the rows next to them; the deviation is over the 8 covered cells only.
+    half = np.zeros((8, 8), bool)
+    half[:, :4] = True
+    def extended(image):
+        return np.pad(pool2(image)[:, :2], ((1, 1), (1, 3)), mode="edge")
+    expected = _prewitt_gms_std(extended(distorted), extended(reference), range(4), range(2))
+    assert covered_gmsd(reference, distorted, half) == pytest.approx(expected, abs=1e-14)
+    assert expected > 0
