@@ -336,24 +336,21 @@ def _covered_gmsd_kernel(sums, counts, m, reference_gradient, c, value, queue):
     """Numba: :func:`covered_gmsd` of a distorted screen given as per-cell sums against a reference gradient."""
     size = m + 2
     _extend_cells(sums, counts, size, value, queue)
-    total = 0.0
+    gms = np.empty(m * m)
     covered = 0
+    total = 0.0
     for i in range(m):
         for j in range(m):
             if counts[(i + 1) * size + j + 1] > 0:
                 mr = reference_gradient[i * m + j]
                 md = _prewitt_at(value, size, i, j)
-                total += (2.0 * mr * md + c) / (mr * mr + md * md + c)
+                gms[covered] = (2.0 * mr * md + c) / (mr * mr + md * md + c)
+                total += gms[covered]
                 covered += 1
     if covered == 0:
         return 0.0
     mean = total / covered
     var = 0.0
-    for i in range(m):
-        for j in range(m):
-            if counts[(i + 1) * size + j + 1] > 0:
-                mr = reference_gradient[i * m + j]
-                md = _prewitt_at(value, size, i, j)
-                d = (2.0 * mr * md + c) / (mr * mr + md * md + c) - mean
-                var += d * d
+    for k in range(covered):
+        var += (gms[k] - mean) ** 2
     return np.sqrt(var / covered)
