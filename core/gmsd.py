@@ -15,9 +15,8 @@ Conventions, matching the ``piq`` package (``piq.gmsd``) to round-off (pinned in
   GMS map has the pooled size; border gradients see a step to 0;
 - no ``eps`` in the denominator (``c > 0`` already keeps it positive), so identical images give exactly 0.
 
-For screens of the triangle-wise loss the reference side is fixed; :func:`gradient_magnitude` and
-:func:`gmsd_from_gradient` let a caller pool and differentiate it once. Those screens show part of a mesh on
-an empty background; :func:`covered_gmsd` measures them over the covered part only.
+The screens of the triangle-wise loss show part of a mesh on an empty background; :func:`covered_gmsd`
+measures them over the covered part only (its fused kernels keep the reference side's gradient fixed).
 """
 import numpy as np
 
@@ -161,71 +160,6 @@ def gmsd(reference, distorted, *, data_range=1.0, c=GMSD_C, channel_axis=None, f
     ref = luma(reference, channel_axis=channel_axis) / data_range
     dist = luma(distorted, channel_axis=channel_axis) / data_range
     return gmsd_from_gradient(gradient_magnitude(pool2(ref)), gradient_magnitude(pool2(dist)), c=c, full=full)
-
-
-@njit
-def _pooled_gradient_kernel(image, out):
-    """Numba: ``gradient_magnitude(pool2(image))`` for an (n, n) image with n even into out (n/2, n/2)."""
-    m = image.shape[0] // 2
-    pooled = np.zeros((m + 2, m + 2))
-    for i in range(m):
-        for j in range(m):
-            pooled[i + 1, j + 1] = (image[2 * i, 2 * j] + image[2 * i + 1, 2 * j] + image[2 * i, 2 * j + 1]
-                                    + image[2 * i + 1, 2 * j + 1]) / 4.0
-    for i in range(m):
-        for j in range(m):
-            gx = (pooled[i, j] + pooled[i + 1, j] + pooled[i + 2, j]
-                  - pooled[i, j + 2] - pooled[i + 1, j + 2] - pooled[i + 2, j + 2]) / 3.0
-            gy = (pooled[i, j] + pooled[i, j + 1] + pooled[i, j + 2]
-                  - pooled[i + 2, j] - pooled[i + 2, j + 1] - pooled[i + 2, j + 2]) / 3.0
-            out[i, j] = np.sqrt(gx * gx + gy * gy)
-
-
-@njit
-def _gmsd_gradient_kernel(reference_gradient, distorted_gradient, c):
-    """Numba: :func:`gmsd_from_gradient` (two-pass mean and population std)."""
-    h, w = reference_gradient.shape
-    gms = np.empty((h, w))
-    total = 0.0
-    for i in range(h):
-        for j in range(w):
-            mr = reference_gradient[i, j]
-            md = distorted_gradient[i, j]
-            g = (2.0 * mr * md + c) / (mr * mr + md * md + c)
-            gms[i, j] = g
-            total += g
-    mean = total / (h * w)
-    var = 0.0
-    for i in range(h):
-        for j in range(w):
-            d = gms[i, j] - mean
-            var += d * d
-    return np.sqrt(var / (h * w))
-
-
-@njit
-def _gmsd_padded_pooled_kernel(padded, reference_gradient, c, gms):
-    """Numba: GMSD of a pooled image given with a one-texel zero border, ``padded`` (m + 2, m + 2), against a
-    reference gradient-magnitude map (m, m); ``gms`` (m * m,) is scratch. Same conventions as :func:`gmsd`."""
-    m = reference_gradient.shape[0]
-    total = 0.0
-    for i in range(m):
-        for j in range(m):
-            gx = (padded[i, j] + padded[i + 1, j] + padded[i + 2, j]
-                  - padded[i, j + 2] - padded[i + 1, j + 2] - padded[i + 2, j + 2]) / 3.0
-            gy = (padded[i, j] + padded[i, j + 1] + padded[i, j + 2]
-                  - padded[i + 2, j] - padded[i + 2, j + 1] - padded[i + 2, j + 2]) / 3.0
-            md2 = gx * gx + gy * gy
-            mr = reference_gradient[i, j]
-            g = (2.0 * mr * np.sqrt(md2) + c) / (mr * mr + md2 + c)
-            gms[i * m + j] = g
-            total += g
-    mean = total / (m * m)
-    var = 0.0
-    for k in range(m * m):
-        d = gms[k] - mean
-        var += d * d
-    return np.sqrt(var / (m * m))
 
 
 def covered_gmsd(reference, distorted, covered, *, c=GMSD_C):
