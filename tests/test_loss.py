@@ -10,6 +10,8 @@ from perceptual_uv.core import loss
 from perceptual_uv.core.gmsd import luma
 from perceptual_uv.core.mesh import read_obj
 from perceptual_uv.core.one_ring import one_ring_faces
+from perceptual_uv.core.raster import rasterize
+from perceptual_uv.core.camera import triangle_cameras
 
 SHARED = pathlib.Path(__file__).resolve().parents[1].parent / "shared"
 IDENTITY = [0.0, 1.0, 1.0, 0.0]
@@ -233,3 +235,26 @@ def test_one_ring_across_a_uv_seam(textured):
     e = problem.evaluate(params)
     assert e[0] < 1e-8
     np.testing.assert_allclose(e, loss._evaluate_reference(problem, params), rtol=1e-7, atol=1e-12)
+
+
+def test_a_sliver_sees_the_panel_around_it():
+    # A flat unit panel cut into 40 horizontal strips of two triangles each (aspect ratio ~80), with 64 x 64
+    # noise mapped one to one.
+    strips = 40
+    y = np.linspace(0, 1, strips + 1)
+    V = np.array([[x, yk, 0.0] for yk in y for x in (0.0, 1.0)])
+    F = np.array([f for k in range(strips) for f in ([2 * k, 2 * k + 1, 2 * k + 3], [2 * k, 2 * k + 3, 2 * k + 2])],
+                 dtype=np.int64)
+    uv = V[F][:, :, :2]
+    texture = np.random.default_rng(13).random((64, 64))
+    face = 40  # strip 20; its window is the whole panel
+    problem = loss.triangle_problem(V, F, uv, texture, face)
+    offsets, neighbours = one_ring_faces(F, V=V)
+    ring = rasterize(V, F, neighbours[offsets[face]:offsets[face + 1]],
+                     triangle_cameras(V, F, [face], screen_pixels=problem.screen_pixels))
+    # The one-ring is three strips, about 3/40 of the window; the faces reaching into it cover the window but
+    # for the corners that App. A's frame (turned towards the first corner) leaves off the panel.
+    assert len(ring.pixel) / problem.screen_pixels ** 2 == pytest.approx(3 / 40, abs=0.02)
+    assert len(problem.pixel) / problem.screen_pixels ** 2 > 0.95
+    # Noise at half the texels per side loses most of its detail: far above epsilon = 0.01.
+    assert problem.evaluate([0.0, 0.5, 0.5, 0.0])[0] > 0.05
