@@ -201,7 +201,7 @@ def covered_gmsd(reference, distorted, covered, *, c=GMSD_C):
         raise ValueError("reference, distorted and covered must be (n, n) with n even, got "
                          f"{reference.shape}, {distorted.shape}, {covered.shape}")
     m = n // 2
-    cell = ((np.arange(n)[:, None] // 2 + 1) * (m + 2) + np.arange(n)[None, :] // 2 + 1)[covered]
+    cell = _pooled_index(np.flatnonzero(covered), n)
     counts = np.bincount(cell, minlength=(m + 2) ** 2).astype(np.float64)
     workspace = np.empty((m + 2) ** 2), np.empty((m + 2) ** 2, np.int64)
     reference_gradient = np.empty(m * m)
@@ -209,6 +209,13 @@ def covered_gmsd(reference, distorted, covered, *, c=GMSD_C):
                              *workspace)
     return float(_covered_gmsd_kernel(np.bincount(cell, distorted[covered], (m + 2) ** 2), counts, m,
                                       reference_gradient, c, *workspace))
+
+
+def _pooled_index(pixel, n):
+    """Flat index of the pooling cell of each flat pixel ``i * n + j`` in an ``(n/2 + 2)^2`` grid with a one-cell
+    border: cell ``(i // 2 + 1, j // 2 + 1)``."""
+    i, j = np.divmod(pixel, n)
+    return ((i // 2 + 1) * (n // 2 + 2) + j // 2 + 1).astype(np.int64)
 
 
 @njit

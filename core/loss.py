@@ -45,7 +45,8 @@ from .bake_lsq import (DEFAULT_RIDGE, _apply_renumber, _band_cholesky_solve, _en
                        _envelope_first, _first_occurrence_ids, _group_by_component, _render_ids,
                        _solve_normal_equations)
 from .camera import triangle_cameras
-from .gmsd import GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, covered_gmsd, luma as _to_luma
+from .gmsd import (GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, _pooled_index, covered_gmsd,
+                   luma as _to_luma)
 from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
 from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
 
@@ -544,13 +545,6 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
         rendered[p] = ((1.0 - fx) * ((1.0 - fy) * cell_value[c, 0] + fy * cell_value[c, 2])
                        + fx * ((1.0 - fy) * cell_value[c, 1] + fy * cell_value[c, 3]))
     return True
-
-
-def _pooled_index(pixel, n):
-    """Pixel (i, j) adds a quarter of its value to pooled texel (i // 2, j // 2) of an (n/2 + 2)^2 map with a
-    zero border: its flat index there."""
-    i, j = np.divmod(pixel, n)
-    return ((i // 2 + 1) * (n // 2 + 2) + j // 2 + 1).astype(np.int64)
 
 
 def _points_box(points):
