@@ -153,10 +153,12 @@ def _window_faces_kernel(V, F, offsets, neighbours, face, frame, bounds, limit, 
             y_max = -np.inf
             near = True
             for c in range(3):
-                d = V[F[q, c]] - frame[0]
-                x = d[0] * frame[1, 0] + d[1] * frame[1, 1] + d[2] * frame[1, 2]
-                y = d[0] * frame[2, 0] + d[1] * frame[2, 1] + d[2] * frame[2, 2]
-                height = d[0] * frame[3, 0] + d[1] * frame[3, 1] + d[2] * frame[3, 2]
+                x = y = height = 0.0
+                for axis in range(3):  # scalars: no array per corner in this per-face loop
+                    d = V[F[q, c], axis] - frame[0, axis]
+                    x += d * frame[1, axis]
+                    y += d * frame[2, axis]
+                    height += d * frame[3, axis]
                 x_min = min(x_min, x)
                 x_max = max(x_max, x)
                 y_min = min(y_min, y)
