@@ -5,12 +5,14 @@ Usage (from /work, the repo's parent folder)::
 
     main/.venv/bin/python -m perceptual_uv.bench.compare --models shared/models --costs 0.1,0.2,0.3,0.5 \\
         --out main/docs/results [--evaluations 100] [--epsilons 0.005,0.02] [--methods input,repacked,...] \\
-        [--screen 512] [--workers 0]
+        [--screen 512] [--workers 0] [--reuse input,repacked,...]
     main/.venv/bin/python -m perceptual_uv.bench.compare --summary main/docs/results
 
 Per model: ``<model>_q_vs_c.png``, ``<model>.md``, ``<model>.json`` and ``<model>_crops_c030.png``;
 ``--summary`` rebuilds ``summary.md`` from every ``<model>.json`` in the folder. Every q is reported with its
-screen size (20 dodecahedron views).
+screen size (20 dodecahedron views). ``--reuse`` takes the listed methods' results from the ``<model>.json``
+already in ``--out`` (same costs and screen) instead of recomputing them, for reruns after a change that cannot
+affect those methods; the JSON and the table name the reused methods.
 """
 
 import argparse
@@ -134,8 +136,28 @@ def _wins(results, costs=WIN_COSTS):
     return losses
 
 
-def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilons, workers, out):
-    """Runs every method on one model file and writes its plot, crops, markdown table and JSON; returns the table."""
+def _previous_results(file, methods, *, costs, screen):
+    """Results and making times of ``methods`` from an earlier ``<model>.json``, checked to match this run."""
+    if not methods:
+        return {}, {}
+    if not file.exists():
+        raise SystemExit(f"--reuse: {file} does not exist; run these methods once without --reuse")
+    data = json.loads(file.read_text())
+    missing = [m for m in methods if m not in data["results"]]
+    if missing:
+        raise SystemExit(f"--reuse: {file} has no results for {missing}")
+    for method in methods:
+        result = data["results"][method]
+        if result["screen_pixels"] != screen or sorted(p["target_cost"] for p in result["points"]) != sorted(costs):
+            raise SystemExit(f"--reuse: {file} has {method} at other costs or another screen size than this run")
+    return {m: data["results"][m] for m in methods}, {m: data["times_s"].get(m) for m in methods}
+
+
+def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilons, workers, out, reuse=()):
+    """Runs every method on one model file and writes its plot, crops, markdown table and JSON; returns the table.
+
+    The methods in ``reuse`` are read from the ``<model>.json`` already in ``out`` instead of being run.
+    """
     import bpy
 
     from ..bridge.batch import textured_objects
@@ -144,6 +166,9 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     from ..core.cost import texel_cost
     from ..core.evaluation import symmetric_dirichlet
 
+    stem = path.stem
+    reused, reused_times = _previous_results(out / f"{stem}.json", [m for m in methods if m in reuse], costs=costs,
+                                             screen=screen)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     import_model(path)
     objects = textured_objects()
@@ -157,6 +182,11 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     # except the two the crops and the pixel saving need.
     failures = {}
     for method in list(methods) + [_epsilon_method(e) for e in epsilons]:
+        if method in reused:
+            results[method] = reused[method]
+            if method == "input":
+                names[method] = source
+            continue
         try:
             names[method] = maps.make(method)
         except ValueError as error:  # a baseline that cannot handle this input is reported, not fatal
@@ -169,14 +199,13 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
                                                      for p in results[method]["points"]), flush=True)
         if method not in ("input", "ours"):
             maps.remove(names.pop(method))
-    times = maps.times
+    times = {**{m: t for m, t in reused_times.items() if t is not None}, **maps.times}
     saving = _pixel_saving(objects, source, names, results, reference, screen)
-    stem = path.stem
     surface_area = float(symmetric_dirichlet(V, F, uv, full=True)[1]["area"])
     table = dict(model=stem, vertices=len(V), faces=len(F), surface_area=surface_area, input_resolution=r_input,
                  input_cost=float(texel_cost(uv, r_input)), epsilon=epsilon, evaluations=evaluations,
                  screen_pixels=screen, t_triangle=times.get("triangle"), t_mesh=times.get("mesh"),
-                 pixel_saving=saving, beaten_by=_wins(results), failures=failures)
+                 pixel_saving=saving, beaten_by=_wins(results), failures=failures, reused=sorted(reused))
     _plot(results, out / f"{stem}_q_vs_c.png", stem, screen)
     _crops(objects, names, source, reference, out / f"{stem}_crops_c030.png", screen)
     (out / f"{stem}.md").write_text(_model_markdown(table, results, costs))
@@ -202,6 +231,8 @@ def _model_markdown(table, results, costs):
                                                    for c in costs) + f" | {res['e_iso'] / table['surface_area']:.4g} |")
     for method, reason in table.get("failures", {}).items():
         lines.append(f"| {method} | failed: {reason} |" + " |" * len(costs))
+    if table.get("reused"):
+        lines += ["", f"Taken from the previous run of this model, not recomputed: {', '.join(table['reused'])}."]
     saving = table["pixel_saving"]
     if saving:
         lines += ["", f"Pixel saving: ours reaches the input's q_r at c_r = {SAVING_REFERENCE_COST} "
@@ -325,6 +356,7 @@ def main(argv=None):
     parser.add_argument("--screen", type=int, default=512)
     parser.add_argument("--workers", type=int, default=0, help="triangle-wise workers (0: one per core)")
     parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--reuse", default="", help="methods whose results are read from the <model>.json in --out")
     parser.add_argument("--summary", type=pathlib.Path, help="only rebuild summary.md in this folder")
     args = parser.parse_args(argv)
     if args.summary:
@@ -335,13 +367,15 @@ def main(argv=None):
     costs = [float(c) for c in args.costs.split(",")]
     epsilons = [float(e) for e in args.epsilons.split(",") if e]
     methods = [m for m in args.methods.split(",") if m]
-    unknown = set(methods) - set(METHODS)
+    reuse = [m for m in args.reuse.split(",") if m]
+    unknown = (set(methods) | set(reuse)) - set(METHODS)
     if unknown:
         parser.error(f"unknown methods {sorted(unknown)}; choose from {METHODS}")
     args.out.mkdir(parents=True, exist_ok=True)
     for path in _models(args.models):
         print(compare_model(path, costs=costs, methods=methods, evaluations=args.evaluations, screen=args.screen,
-                            epsilon=args.epsilon, epsilons=epsilons, workers=args.workers, out=args.out),
+                            epsilon=args.epsilon, epsilons=epsilons, workers=args.workers, out=args.out,
+                            reuse=reuse),
               flush=True)
     print(write_summary(args.out))
     return 0
