@@ -96,7 +96,10 @@ def build_parser():
     optimize.add_argument("--iterations", type=int, default=DEFAULTS.iterations, help="loss evaluations per triangle")
     optimize.add_argument("--screen-pixels", type=int, default=DEFAULTS.screen_pixels,
                           help=f"per-triangle view size (default {DEFAULTS.screen_pixels}; grows to one pixel per "
-                               "input texel, up to 256)")
+                               "input texel, up to --max-screen-pixels)")
+    optimize.add_argument("--max-screen-pixels", type=int, default=DEFAULTS.max_screen_pixels,
+                          help=f"largest per-triangle view size (default {DEFAULTS.max_screen_pixels}; lower it "
+                               "to bound the time on large textures)")
     optimize.add_argument("--margin", type=int, default=DEFAULTS.margin, help="island margin in pixels")
     optimize.add_argument("--workers", type=int, default=DEFAULTS.workers, help="worker processes (0: one per core)")
     optimize.add_argument("--seed", type=int, default=DEFAULTS.seed)
@@ -118,7 +121,8 @@ def _validate(args):
         try:
             args.settings = OptimizeSettings(
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
-                screen_pixels=args.screen_pixels, margin=args.margin, workers=args.workers, seed=args.seed)
+                screen_pixels=args.screen_pixels, max_screen_pixels=args.max_screen_pixels, margin=args.margin,
+                workers=args.workers, seed=args.seed)
         except ValueError as error:
             raise UsageError(str(error)) from None
     return args

@@ -31,8 +31,13 @@ def settings_annotations():
         "screen_pixels": IntProperty(
             name="Screen Pixels",
             description=("Side of the per-triangle orthographic view (paper App. A); triangles spanning more "
-                         "texels get one pixel per texel, up to 256"),
+                         "texels get one pixel per texel, up to Largest View"),
             default=DEFAULTS.screen_pixels, min=16, max=256),
+        "max_screen_pixels": IntProperty(
+            name="Largest View",
+            description=("Largest side a per-triangle view grows to on a fine texture; lower bounds the time, "
+                         "equal to Screen Pixels keeps every view at that size"),
+            default=DEFAULTS.max_screen_pixels, min=16, max=256),
         "margin": IntProperty(
             name="Margin", description="Packing and bake margin in pixels of the new image",
             default=DEFAULTS.margin, min=0, max=64),

@@ -173,10 +173,10 @@ def _read_objects(objects, source_uv, settings):
     what = ", ".join(f"'{obj.name}'" for obj in objects)
     # Refused before the pixels are read when the run would not fit.
     check_memory_budget(mesh.n_vertices, mesh.n_faces, (height, width, image.channels), workers=settings.workers,
-                        screen_pixels=settings.screen_pixels, what=what)
+                        screen_pixels=settings.max_screen_pixels, what=what)
     uses_image = np.concatenate([image_triangle_mask(obj, arrays, image) for obj, arrays in zip(objects, per_object)])
     validated = validate_inputs(mesh, read_image(image), shows_texture=uses_image, workers=settings.workers,
-                                screen_pixels=settings.screen_pixels, uv_name=source_uv, image_name=image.name)
+                                screen_pixels=settings.max_screen_pixels, uv_name=source_uv, image_name=image.name)
     return image, validated, _notes_for_objects(objects) + list(validated.notes)
 
 
@@ -349,6 +349,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         clock = time.perf_counter()
         stage = iter_optimize_triangles(V, F, uv_in, luma, epsilon=settings.epsilon,
                                         evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
+                                        max_screen_pixels=settings.max_screen_pixels,
                                         workers=settings.workers, seed=settings.seed, faces=faces)
         triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock)
         times["triangle"] = time.perf_counter() - clock
@@ -384,7 +385,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         yield Progress("loss", 0, 1, "Measuring the loss per triangle")
         losses = np.zeros(m)  # skipped triangles show 0 in the overlay; the report counts optimized ones only
-        losses[faces] = losses_at(V, F, uv_in, luma, uv_fit, screen_pixels=settings.screen_pixels, faces=faces)
+        losses[faces] = losses_at(V, F, uv_in, luma, uv_fit, screen_pixels=settings.screen_pixels,
+                                  max_screen_pixels=settings.max_screen_pixels, faces=faces)
         for obj, rows in zip(objects, per_object):
             _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
 

@@ -20,7 +20,11 @@ class OptimizeSettings:
         Loss evaluations per triangle in the Bayesian optimization (the paper: 100, Fig. 15).
     screen_pixels : int
         Side of the per-triangle orthographic view (App. A: 64); a triangle spanning more input texels across
-        it gets one pixel per texel, up to 256 (``core.trianglewise.MAX_SCREEN_PIXELS``).
+        it gets one pixel per texel, up to ``max_screen_pixels``.
+    max_screen_pixels : int
+        Largest side a view grows to (at most 256, ``core.trianglewise.MAX_SCREEN_PIXELS``); equal to
+        ``screen_pixels``, every view keeps App. A's fixed size. The time of a view grows with its pixel count,
+        so this bounds the triangle-wise stage on large textures, at the price of views coarser than the texels.
     margin : int
         Gap between packed islands and bake margin, in pixels of the new image.
     workers : int
@@ -40,6 +44,7 @@ class OptimizeSettings:
     resolution: int | None = None
     iterations: int = 100
     screen_pixels: int = 64
+    max_screen_pixels: int = 256
     margin: int = 4
     workers: int = 0
     seed: int = 0
@@ -57,6 +62,9 @@ class OptimizeSettings:
             (self.iterations >= 10, f"iterations {self.iterations}: at least 10 evaluations per triangle"),
             (16 <= self.screen_pixels <= 256 and self.screen_pixels % 2 == 0,
              f"screen pixels {self.screen_pixels}: must be even and in [16, 256]"),
+            (self.screen_pixels <= self.max_screen_pixels <= 256 and self.max_screen_pixels % 2 == 0,
+             f"largest view {self.max_screen_pixels}: must be even and in [screen pixels ({self.screen_pixels}), "
+             "256]"),
             (0 <= self.margin <= 64, f"margin {self.margin}: must be in [0, 64] pixels"),
             (self.workers >= 0, f"workers {self.workers}: must be >= 0"),
             (self.seed >= 0, f"seed {self.seed}: must be >= 0"),

@@ -149,7 +149,7 @@ def memory_estimate(n_vertices, n_triangles, texture_shape, *, workers=1, screen
         Worker processes of the triangle-wise stage (each holds the mesh and the texture's luma); 0 is one
         per core.
     screen_pixels : int, optional
-        Side of the per-triangle view.
+        Largest side of a per-triangle view.
 
     Returns
     -------
@@ -244,7 +244,7 @@ def validate_inputs(mesh, texture, *, shows_texture=None, workers=1, screen_pixe
     workers : int, optional
         Worker processes the run will use (0: one per core), for the memory estimate.
     screen_pixels : int, optional
-        Per-triangle view size, for the memory estimate.
+        Largest per-triangle view size, for the memory estimate.
     memory_budget : int, optional
         Bytes the run may use; default half of the physical memory (no check where it is unknown).
     uv_name, image_name : str, optional

@@ -34,6 +34,7 @@ class IMAGE_PT_perceptual_uv(bpy.types.Panel):
         col = layout.column(heading="Optimization")
         col.prop(settings, "iterations")
         col.prop(settings, "screen_pixels")
+        col.prop(settings, "max_screen_pixels")
         col.prop(settings, "workers")
         col.prop(settings, "seed")
 

@@ -53,6 +53,9 @@ def test_optimize_defaults_follow_the_design_contract():
     settings = parse_args(["optimize", str(SPOT), "--out", "x.blend"]).settings
     assert (settings.epsilon, settings.target_cost, settings.resolution) == (0.01, 0.3, None)
     assert (settings.iterations, settings.screen_pixels, settings.seed) == (100, 64, 0)
+    assert settings.max_screen_pixels == 256
+    capped = parse_args(["optimize", str(SPOT), "--out", "x.blend", "--max-screen-pixels", "64"]).settings
+    assert capped.max_screen_pixels == 64
 
 
 def test_cost_and_resolution_are_exclusive():

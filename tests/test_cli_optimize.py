@@ -14,7 +14,7 @@ from test_optimize_end_to_end import FAST, spot_patch  # noqa: E402  (tests/ is 
 
 pytestmark = pytest.mark.bpy
 FAST_ARGS = ["--iterations", str(FAST["iterations"]), "--screen-pixels", str(FAST["screen_pixels"]),
-             "--workers", "1"]
+             "--max-screen-pixels", str(FAST["max_screen_pixels"]), "--workers", "1"]
 
 
 @pytest.fixture(scope="module")

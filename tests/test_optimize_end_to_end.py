@@ -13,7 +13,7 @@ from perceptual_uv.core.settings import OptimizeSettings  # noqa: E402
 from conftest import reset_blender_scene  # noqa: E402  (tests/ is on sys.path under pytest)
 
 pytestmark = pytest.mark.bpy
-FAST = dict(iterations=10, screen_pixels=32, workers=1, target_cost=0.3)
+FAST = dict(iterations=10, screen_pixels=32, max_screen_pixels=32, workers=1, target_cost=0.3)
 ID_KINDS = ("objects", "meshes", "materials", "images", "scenes")
 
 
@@ -144,6 +144,25 @@ def test_cancel_leaves_nothing(registered, spot_obj, stages):
         run.close()
         assert_unchanged(obj, before)
     assert tuple(stages_seen) == stages
+
+
+def test_the_largest_view_reaches_both_triangle_wise_calls(registered, spot_obj, monkeypatch):
+    from perceptual_uv.bridge.pipeline import run_to_end
+    from perceptual_uv.core import trianglewise
+
+    seen = {}
+
+    def recording(function):
+        def wrapper(*args, **kwargs):
+            seen[function.__name__] = kwargs.get("max_screen_pixels")
+            return function(*args, **kwargs)
+        return wrapper
+
+    for name in ("iter_optimize_triangles", "losses_at"):
+        monkeypatch.setattr(trianglewise, name, recording(getattr(trianglewise, name)))
+    obj = spot_patch(spot_obj, above=1.0)
+    run_to_end(optimize_objects([obj], OptimizeSettings(**dict(FAST, screen_pixels=16, max_screen_pixels=24))))
+    assert seen == {"iter_optimize_triangles": 24, "losses_at": 24}
 
 
 def test_report_fields(registered, spot_obj, tmp_path):

@@ -9,10 +9,18 @@ def test_defaults_are_the_papers():
     assert settings.uv_map_name == "PerceptualUV"
 
 
+def test_views_grow_by_default_to_the_core_limit():
+    from perceptual_uv.core.trianglewise import MAX_SCREEN_PIXELS
+
+    assert OptimizeSettings().max_screen_pixels == MAX_SCREEN_PIXELS == 256
+    assert OptimizeSettings(screen_pixels=32, max_screen_pixels=32).max_screen_pixels == 32
+
+
 @pytest.mark.parametrize("field, value, fragment", [
     ("epsilon", 0.0, "epsilon"), ("target_cost", 0.0, "target cost"), ("resolution", 4, "resolution"),
     ("iterations", 5, "iterations"), ("screen_pixels", 63, "screen pixels"), ("workers", -1, "workers"),
-    ("uv_map_name", " ", "name"),
+    ("uv_map_name", " ", "name"), ("max_screen_pixels", 48, "largest view"), ("max_screen_pixels", 99, "largest view"),
+    ("max_screen_pixels", 512, "largest view"),
 ])
 def test_bad_values_are_refused_with_the_field_named(field, value, fragment):
     with pytest.raises(ValueError, match=fragment):
