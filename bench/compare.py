@@ -5,14 +5,16 @@ Usage (from /work, the repo's parent folder)::
 
     main/.venv/bin/python -m perceptual_uv.bench.compare --models shared/models --costs 0.1,0.2,0.3,0.5 \\
         --out main/docs/results [--evaluations 100] [--epsilons 0.005,0.02] [--methods input,repacked,...] \\
-        [--screen 512] [--workers 0] [--reuse input,repacked,...]
+        [--screen 512] [--workers 0] [--reuse input,repacked,...] [--triangles CACHE_DIR]
     main/.venv/bin/python -m perceptual_uv.bench.compare --summary main/docs/results
 
 Per model: ``<model>_q_vs_c.png``, ``<model>.md``, ``<model>.json`` and ``<model>_crops_c030.png``;
 ``--summary`` rebuilds ``summary.md`` from every ``<model>.json`` in the folder. Every q is reported with its
 screen size (20 dodecahedron views). ``--reuse`` takes the listed methods' results from the ``<model>.json``
 already in ``--out`` (same costs and screen) instead of recomputing them, for reruns after a change that cannot
-affect those methods; the JSON and the table name the reused methods.
+affect those methods; the JSON and the table name the reused methods. ``--triangles`` keeps each model's
+triangle-wise result in a folder (``bridge.baselines.triangle_targets``), so that a change to the mesh-wise
+stage or the packing is measured without that stage again; t_triangle is then the time of the run that wrote it.
 """
 
 import argparse
@@ -49,18 +51,23 @@ def _epsilon_method(epsilon):
 class _UVMaps:
     """Makes one UV map per method on the objects (the triangle-wise stage runs once per epsilon) and keeps times."""
 
-    def __init__(self, objects, source, *, evaluations, epsilon, workers):
+    def __init__(self, objects, source, *, evaluations, epsilon, workers, cache=None):
         self.objects, self.source = objects, source
         self.evaluations, self.epsilon, self.workers = evaluations, epsilon, workers
+        self.cache = cache  # (folder, model stem) or None
         self.times, self._triangles = {}, {}
 
     def _targets(self, epsilon):
         from ..bridge import baselines
 
         if epsilon not in self._triangles:
+            cache = None
+            if self.cache is not None:
+                folder, stem = self.cache
+                cache = folder / f"{stem}_eps{epsilon:g}_n{self.evaluations}.npz"
             self._triangles[epsilon], t = baselines.triangle_targets(
                 self.objects, source_uv=self.source, epsilon=epsilon, evaluations=self.evaluations,
-                workers=self.workers)
+                workers=self.workers, cache=cache)
             self.times["triangle" if epsilon == self.epsilon else f"triangle_eps{epsilon:g}"] = t
         return self._triangles[epsilon]
 
@@ -153,10 +160,12 @@ def _previous_results(file, methods, *, costs, screen):
     return {m: data["results"][m] for m in methods}, {m: data["times_s"].get(m) for m in methods}
 
 
-def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilons, workers, out, reuse=()):
+def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilons, workers, out, reuse=(),
+                  triangles=None):
     """Runs every method on one model file and writes its plot, crops, markdown table and JSON; returns the table.
 
-    The methods in ``reuse`` are read from the ``<model>.json`` already in ``out`` instead of being run.
+    The methods in ``reuse`` are read from the ``<model>.json`` already in ``out`` instead of being run;
+    ``triangles`` is the folder of cached triangle-wise results, if any.
     """
     import bpy
 
@@ -176,7 +185,8 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     V, F, uv = mesh_arrays(objects, source)
     r_input = reference_resolution(objects)
     reference = render_views(objects, uv_name=source, screen_pixels=screen)
-    maps = _UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers)
+    maps = _UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers,
+                   cache=None if triangles is None else (triangles, stem))
     names, results = {}, {}
     # Blender keeps at most 8 UV maps per mesh: each map is evaluated as soon as it exists and then removed,
     # except the two the crops and the pixel saving need.
@@ -357,6 +367,7 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, default=0, help="triangle-wise workers (0: one per core)")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--reuse", default="", help="methods whose results are read from the <model>.json in --out")
+    parser.add_argument("--triangles", type=pathlib.Path, help="folder that keeps the triangle-wise results")
     parser.add_argument("--summary", type=pathlib.Path, help="only rebuild summary.md in this folder")
     args = parser.parse_args(argv)
     if args.summary:
@@ -372,10 +383,12 @@ def main(argv=None):
     if unknown:
         parser.error(f"unknown methods {sorted(unknown)}; choose from {METHODS}")
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.triangles:
+        args.triangles.mkdir(parents=True, exist_ok=True)
     for path in _models(args.models):
         print(compare_model(path, costs=costs, methods=methods, evaluations=args.evaluations, screen=args.screen,
                             epsilon=args.epsilon, epsilons=epsilons, workers=args.workers, out=args.out,
-                            reuse=reuse),
+                            reuse=reuse, triangles=args.triangles),
               flush=True)
     print(write_summary(args.out))
     return 0

@@ -63,3 +63,32 @@ def test_sspop_is_flip_free_and_packed(spot):
     signed0 = e0[:, 0] * f0[:, 1] - e0[:, 1] * f0[:, 0]
     keep = np.abs(signed0) > 1e-12
     assert np.all(np.sign(signed[keep]) == np.sign(signed0[keep]))
+
+
+def test_triangle_targets_are_cached_per_mesh_texture_and_settings(spot, tmp_path, monkeypatch):
+    from perceptual_uv.core.trianglewise import TrianglewiseResult
+
+    objects, source = spot
+    runs = []
+
+    def fake_stage(V, F, uv, luma, **settings):  # stands in for the minutes of the real stage
+        runs.append(settings["seed"])
+        k = len(F)
+        rng = np.random.default_rng(settings["seed"])
+        return TrianglewiseResult(
+            faces=np.arange(k), params=rng.random((k, 4)), loss=rng.random(k), w_R=rng.random(k), w_S=rng.random(k),
+            evaluations=np.full(k, 7), feasible=np.ones(k, bool), is_constant=np.zeros(k, bool), epsilon=0.01,
+            lambda_min=0.1, formulation="constrained", backend="fast")
+
+    monkeypatch.setattr(baselines, "optimize_triangles", fake_stage)
+    cache = tmp_path / "spot.npz"
+    first, t_first = baselines.triangle_targets(objects, source_uv=source, epsilon=0.01, evaluations=10, cache=cache)
+    again, t_again = baselines.triangle_targets(objects, source_uv=source, epsilon=0.01, evaluations=10, cache=cache)
+    assert runs == [0] and t_again == t_first
+    np.testing.assert_array_equal(again.params, first.params)
+    np.testing.assert_array_equal(again.fit_weights()[1], first.fit_weights()[1])
+    assert (again.epsilon, again.formulation, again.feasible.dtype) == (0.01, "constrained", np.bool_)
+    # another seed is another result: run again and keep the new one
+    baselines.triangle_targets(objects, source_uv=source, epsilon=0.01, evaluations=10, seed=3, cache=cache)
+    baselines.triangle_targets(objects, source_uv=source, epsilon=0.01, evaluations=10, seed=3, cache=cache)
+    assert runs == [0, 3]
