@@ -21,7 +21,7 @@ from ..core.loss import texture_luma
 from ..core.meshwise import solve_meshwise
 from ..core.overlap import restore_folded_charts
 from ..core.ssp import solve_ssp, ssp_targets
-from ..core.trianglewise import TrianglewiseResult, optimize_triangles
+from ..core.trianglewise import ROTATION_WEIGHT_SCALE, TrianglewiseResult, optimize_triangles
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
@@ -171,7 +171,8 @@ def save_triangle_cache(file, result, seconds, key):
     np.savez(file, key=key, seconds=seconds, **dataclasses.asdict(result))
 
 
-def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual"):
+def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual",
+                  rotation_scale=ROTATION_WEIGHT_SCALE):
     """Our mesh-wise stage on triangle-wise results ``triangles``, with the Fig. 17 ablations, packed.
 
     As in the pipeline, charts the fit folds over themselves keep their input layout
@@ -183,11 +184,13 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         Of every face; its ``fit_weights()`` weigh the fit, as in the pipeline.
     weights : {"perceptual", "identity"}
     formulation : {"perceptual", "common"}
+    rotation_scale : float, optional
+        Of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights`; 1 fits Eq. 16's rotation targets.
     """
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
     _, F, uv = mesh_arrays(objects, source_uv)
-    w_R, w_S = triangles.fit_weights()
+    w_R, w_S = triangles.fit_weights(rotation_scale=rotation_scale)
     result = solve_meshwise(F, uv, triangles.params, w_R, w_S, weights=weights, formulation=formulation)
     uv_fit, _ = restore_folded_charts(uv, result.uv, result.topology.face_chart)
     t_mesh = time.perf_counter() - start

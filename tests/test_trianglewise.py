@@ -332,15 +332,20 @@ def _result_with_weights(w_R, w_S, *, epsilon):
         formulation="constrained", backend="fast")
 
 
-def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_w_rs_whatever_the_bound():
+def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_w_rs_whatever_the_bound_and_scale_rotation():
     for epsilon in (0.002, 0.02):
         result = _result_with_weights([0.0, 2e-3], [0.0, 1e-3], epsilon=epsilon)
         w_R, w_S = result.fit_weights()
-        np.testing.assert_array_equal(w_R, [0.0, 2e-3])  # rotation: no floor
+        np.testing.assert_array_equal(w_R, [0.0, 0.0])  # rotation targets are left out by default
         np.testing.assert_allclose(w_S, [1e-6, 1e-3 + 1e-6], rtol=1e-12)  # 0.1 * w_rs = 1e-6
         np.testing.assert_array_equal(result.fit_weights(floor=0.0)[1], [0.0, 1e-3])
+        # Eq. 16 as written: Eq. 17's rotation weight, with no floor
+        np.testing.assert_array_equal(result.fit_weights(rotation_scale=1.0)[0], [0.0, 2e-3])
+        np.testing.assert_array_equal(result.fit_weights(rotation_scale=0.5)[0], [0.0, 1e-3])
     with pytest.raises(ValueError, match="floor"):
         result.fit_weights(floor=-1.0)
+    with pytest.raises(ValueError, match="rotation_scale"):
+        result.fit_weights(rotation_scale=-1.0)
 
 
 def test_constant_triangles_shrink_to_their_target_only_with_the_floor():
