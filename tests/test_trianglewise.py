@@ -348,6 +348,27 @@ def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_w_rs_whatever_the_bo
         result.fit_weights(rotation_scale=-1.0)
 
 
+def test_rotation_targets_that_disagree_bend_a_chart_only_when_weighted():
+    """Two triangles of one chart want half their size (lambda = 0.5) and rotations pi/8 apart. Without rotation
+    targets (the default) a similarity meets both stretch targets exactly: singular values 0.5 and 0.5. With
+    Eq. 16's rotation weights no conforming map can turn the two by different angles without shearing them."""
+    from perceptual_uv.core.meshwise import solve_meshwise
+
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    uv = np.array([[[0.0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]])
+    result = dataclasses.replace(_result_with_weights([1e-3, 1e-3], [1e-3, 1e-3], epsilon=0.01),
+                                 params=np.array([[0.0, 0.5, 0.5, 0.0], [np.pi / 8, 0.5, 0.5, 0.0]]))
+
+    def singular_values(rotation_scale):
+        new = solve_meshwise(F, uv, result.params, *result.fit_weights(rotation_scale=rotation_scale)).uv
+        edges = lambda t: np.stack([t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]], axis=-1)  # noqa: E731
+        return np.linalg.svd(edges(new) @ np.linalg.inv(edges(uv)), compute_uv=False)
+
+    np.testing.assert_allclose(singular_values(0.0), 0.5, atol=1e-6)
+    bent = singular_values(1.0)
+    assert np.all(bent[:, 0] / bent[:, 1] > 1.1)
+
+
 def test_constant_triangles_shrink_to_their_target_only_with_the_floor():
     """A chart whose loss never reacts (Eq. 17 weights 0) keeps its size under Eq. 19 as written; with the
     floor it reaches its smallest-area target, a uniform scale by lambda_min (area ratio lambda_min^2)."""
