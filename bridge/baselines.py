@@ -138,7 +138,7 @@ def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=
     V, F, uv = mesh_arrays(objects, source_uv)
     luma = texture_luma(_texture(objects))
     settings = dict(epsilon=epsilon, evaluations=evaluations, screen_pixels=screen_pixels, seed=seed)
-    key = triangle_cache_key(V, F, uv, luma, **settings)
+    key = _triangle_cache_key(V, F, uv, luma, **settings)
     if cache is not None and os.path.exists(cache):
         with np.load(cache) as stored:
             if str(stored["key"]) == key:
@@ -152,11 +152,11 @@ def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=
     result = optimize_triangles(V, F, uv, luma, workers=workers, **settings)
     seconds = time.perf_counter() - start
     if cache is not None:
-        save_triangle_cache(cache, result, seconds, key)
+        np.savez(cache, key=key, seconds=seconds, **dataclasses.asdict(result))
     return result, seconds
 
 
-def triangle_cache_key(V, F, uv, luma, **settings):
+def _triangle_cache_key(V, F, uv, luma, **settings):
     """What a cached triangle-wise result must match: a hash of the arrays and the settings."""
     digest = hashlib.sha256(repr(sorted(settings.items())).encode())
     for array in (V, F, uv, luma):
@@ -164,11 +164,6 @@ def triangle_cache_key(V, F, uv, luma, **settings):
         digest.update(f"{array.dtype}{array.shape}".encode())
         digest.update(array.tobytes())
     return digest.hexdigest()
-
-
-def save_triangle_cache(file, result, seconds, key):
-    """Write a :class:`TrianglewiseResult`, its time and its :func:`triangle_cache_key` to ``file`` (.npz)."""
-    np.savez(file, key=key, seconds=seconds, **dataclasses.asdict(result))
 
 
 def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual",
