@@ -25,7 +25,7 @@ from .mesh_io import read_mesh
 from .render import Camera, WorkbenchRenderer
 from .bake import bake_base_color
 
-__all__ = ["reference_resolution", "mesh_arrays", "render_views", "evaluate_uv_map"]
+__all__ = ["reference_resolution", "mesh_arrays", "render_views", "face_id_views", "evaluate_uv_map"]
 
 
 def reference_resolution(objects):
@@ -92,8 +92,52 @@ def render_views(objects, *, uv_name, image=None, screen_pixels=512):
         return [renderer.render(camera) for camera in cameras]
 
 
+_ID_TEXTURE_WIDTH = 1024
+
+
+def face_id_views(objects, *, screen_pixels=512):
+    """Which triangle each pixel of the 20 views of :func:`render_views` shows.
+
+    Every triangle is drawn in one flat colour that encodes its index: all three corners sample the centre of
+    its own texel of an id texture (exact under linear interpolation), and the render stores values unchanged.
+    The objects are not modified (the renderer draws copies made from arrays).
+
+    Parameters
+    ----------
+    objects : sequence of bpy.types.Object
+    screen_pixels : int, optional
+
+    Returns
+    -------
+    list of 20 (screen_pixels, screen_pixels) int64 ndarrays
+        Index into :func:`mesh_arrays`' triangles, -1 where nothing is drawn; row 0 at the bottom.
+    """
+    objects = list(objects)
+    V, F, _ = mesh_arrays(objects, None)
+    m = len(F)
+    if m >= 256 ** 3 - 1:
+        raise ValueError(f"{m} triangles: more than 24-bit face ids can tell apart")
+    width = _ID_TEXTURE_WIDTH
+    height = -(-m // width)
+    ids = np.arange(width * height)
+    texture = np.stack([(ids // 256 ** k) % 256 for k in range(3)], axis=-1).reshape(height, width, 3) / 255.0
+    face = np.arange(m)
+    texel_centre = np.column_stack([(face % width + 0.5) / width, (face // width + 0.5) / height])
+    uv = np.repeat(texel_centre[:, None, :], 3, axis=1)
+    cameras = _cameras(V, dodecahedron_cameras(V))
+    with WorkbenchRenderer(width=int(screen_pixels), texture_values="stored") as renderer:
+        renderer.add_arrays(V, F, uv, texture)
+        views = [renderer.render(camera) for camera in cameras]
+    out = []
+    for view in views:
+        digits = np.rint(view[..., :3] * 255.0).astype(np.int64)
+        index = digits[..., 0] + 256 * digits[..., 1] + 256 ** 2 * digits[..., 2]
+        out.append(np.where(view[..., 3] > 0.5, index, -1))
+    return out
+
+
 def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
-                    margin=None, reference_views=None, keep_images=False):
+                    margin=None, reference_views=None, keep_images=False, keep_views=False):
     """q_r at each target relative cost and E_iso of UV map ``uv_name`` (paper Sec. 5.1).
 
     Parameters
@@ -115,6 +159,8 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         Views from :func:`render_views` of the reference, to reuse across candidates.
     keep_images : bool, optional
         Keep the baked images (returned under ``images``).
+    keep_views : bool, optional
+        Return each cost's 20 renders under ``rendered`` in its point.
 
     Returns
     -------
@@ -164,6 +210,8 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         q, per_view = perceptual_loss_of_views(reference_views, views, full=True)
         points.append(dict(target_cost=target, resolution=r, relative_cost=c, q=float(q),
                            q_views=[float(x) for x in per_view], time_s=time.perf_counter() - start))
+        if keep_views:
+            points[-1]["rendered"] = views
     result = dict(uv_map=uv_name, reference_uv=reference_uv, screen_pixels=int(screen_pixels),
                   views=len(reference_views), reference_resolution=r_input, e_iso=e_iso, points=points)
     if keep_images:

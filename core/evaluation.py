@@ -4,6 +4,7 @@
 * :func:`dodecahedron_cameras`: the 20 evaluation cameras of Eq. 22, on the vertices of a regular
   dodecahedron around the mesh, each looking at the mesh centre.
 * :func:`perceptual_loss_of_views`: ``q`` of Eq. 22, the mean GMSD over those views.
+* :func:`gmsd_by_region`: where in a view its GMSD comes from (its square split over labelled regions).
 * :func:`symmetric_dirichlet`: the isometric distortion ``E_iso`` of Eq. 24, with the UV map scaled so its
   total area equals the surface area.
 * :func:`pixel_saving`: where a ``q_r - c_r`` curve (Eq. 23) reaches a given quality, i.e. how many pixels a
@@ -24,6 +25,7 @@ __all__ = [
     "dodecahedron_vertices",
     "dodecahedron_cameras",
     "perceptual_loss_of_views",
+    "gmsd_by_region",
     "symmetric_dirichlet",
     "PixelSaving",
     "pixel_saving",
@@ -238,6 +240,51 @@ def perceptual_loss_of_views(reference_views, views, *, full=False):
         scores[i] = gmsd(reference, view, channel_axis=-1 if reference.ndim == 3 else None)
     mean = float(scores.mean())
     return (mean, scores) if full else mean
+
+
+def gmsd_by_region(reference, view, labels, count, *, channel_axis=-1):
+    """The square of a view's GMSD split over labelled regions of its pooled screen.
+
+    GMSD is the standard deviation of the GMS map, so its square is a mean over the pooled cells of
+    ``(gms - mean)^2``; summing that mean's terms per label tells which regions (e.g. seams, silhouettes,
+    the faces of some class) make a view's loss.
+
+    Parameters
+    ----------
+    reference, view : (h, w) or (h, w, c) array_like
+        As in :func:`perceptual_loss_of_views`; ``h`` and ``w`` even.
+    labels : (h // 2, w // 2) array_like of int
+        Region of each pooled cell (GMSD compares 2 x 2 pooled images), in ``[0, count)``.
+    count : int
+        Number of regions.
+    channel_axis : int or None, optional
+        Axis of colour channels of ``reference`` and ``view``; None for grey images.
+
+    Returns
+    -------
+    (count,) ndarray
+        Non-negative; sums to ``GMSD(reference, view)^2``.
+
+    References
+    ----------
+    Sun et al. 2022, Eq. 3 and 22; Xue et al. 2014 (GMSD).
+    """
+    reference = np.asarray(reference, dtype=np.float64)
+    view = np.asarray(view, dtype=np.float64)
+    labels = np.asarray(labels)
+    if reference.shape != view.shape:
+        raise ValueError(f"shapes differ, {reference.shape} vs {view.shape}")
+    if reference.shape[0] % 2 or reference.shape[1] % 2:
+        raise ValueError(f"views must have even sides, got {reference.shape[:2]}")
+    pooled = (reference.shape[0] // 2, reference.shape[1] // 2)
+    if labels.shape != pooled or not np.issubdtype(labels.dtype, np.integer):
+        raise ValueError(f"labels must be integers of shape {pooled}, got {labels.shape} {labels.dtype}")
+    if int(count) != count or count < 1 or labels.min() < 0 or labels.max() >= count:
+        raise ValueError(f"labels must lie in [0, count) with count >= 1, got count {count} and labels in "
+                         f"[{labels.min()}, {labels.max()}]")
+    _, gms = gmsd(reference, view, channel_axis=channel_axis, full=True)
+    terms = (gms - gms.mean()) ** 2 / gms.size
+    return np.bincount(labels.ravel(), weights=terms.ravel(), minlength=int(count))
 
 
 def _triangle_frames(V, F):

@@ -11,9 +11,9 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from perceptual_uv.bridge.evaluate import evaluate_uv_map, render_views  # noqa: E402
+from perceptual_uv.bridge.evaluate import evaluate_uv_map, face_id_views, mesh_arrays, render_views  # noqa: E402
 from perceptual_uv.bridge.mesh_io import import_model  # noqa: E402
-from perceptual_uv.core.evaluation import perceptual_loss_of_views  # noqa: E402
+from perceptual_uv.core.evaluation import dodecahedron_cameras, perceptual_loss_of_views  # noqa: E402
 
 SCREEN = 128
 
@@ -92,3 +92,22 @@ def test_untextured_helper_meshes_are_not_part_of_the_evaluated_model(spot):
     finally:
         bpy.data.objects.remove(helper)
         bpy.data.meshes.remove(mesh)
+
+
+def test_face_ids_cover_the_render_and_face_the_camera(spot):
+    objects, uv, reference = spot
+    ids = face_id_views(objects, screen_pixels=SCREEN)
+    V, F, _ = mesh_arrays(objects, uv)
+    cameras = dodecahedron_cameras(V)
+    normals = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    centroids = V[F].mean(axis=1)
+    for view, face, position in zip(reference, ids, cameras.positions):
+        # the same pixels as the textured render, no antialiasing blends ids
+        np.testing.assert_array_equal(face >= 0, view[..., 3] > 0.5)
+        seen = face[face >= 0]
+        assert seen.max() < len(F)
+        # spot is closed and outward-facing: a pixel shows the near side (front faces), up to rasterization at
+        # grazing angles
+        towards = np.einsum("kd,kd->k", normals[seen], position - centroids[seen]) > 0
+        assert towards.mean() > 0.99
+        assert len(np.unique(seen)) > 500

@@ -9,6 +9,7 @@ from perceptual_uv.core.evaluation import (
     GOLDEN_RATIO,
     dodecahedron_cameras,
     dodecahedron_vertices,
+    gmsd_by_region,
     perceptual_loss_of_views,
     pixel_saving,
     symmetric_dirichlet,
@@ -213,6 +214,35 @@ def test_views_validation():
         perceptual_loss_of_views([np.zeros((4, 4))], [])
     with pytest.raises(ValueError, match="shapes differ"):
         perceptual_loss_of_views([np.zeros((4, 4))], [np.zeros((4, 6))])
+
+
+def test_gmsd_by_region_of_identical_views_is_zero():
+    view = np.random.default_rng(0).random((16, 16, 3))
+    np.testing.assert_array_equal(gmsd_by_region(view, view, np.zeros((8, 8), int), 2), [0.0, 0.0])
+
+
+def test_gmsd_by_region_splits_a_mirror_symmetric_pair_in_halves():
+    # Prewitt magnitudes and edge replication are mirror symmetric, so the two halves of a pair that is
+    # symmetric left-right carry the same share: half of GMSD^2 each.
+    rng = np.random.default_rng(1)
+    half_reference, half_view = rng.random((16, 8)), rng.random((16, 8))
+    reference = np.hstack([half_reference, half_reference[:, ::-1]])
+    view = np.hstack([half_view, half_view[:, ::-1]])
+    labels = np.repeat([[0] * 4 + [1] * 4], 8, axis=0)
+    shares = gmsd_by_region(reference, view, labels, 3, channel_axis=None)
+    total = perceptual_loss_of_views([reference], [view]) ** 2
+    assert total > 1e-3
+    np.testing.assert_allclose(shares, [total / 2, total / 2, 0.0], rtol=1e-12)
+
+
+def test_gmsd_by_region_validation():
+    view = np.zeros((8, 8))
+    with pytest.raises(ValueError, match="shape"):
+        gmsd_by_region(view, view, np.zeros((8, 8), int), 1, channel_axis=None)
+    with pytest.raises(ValueError, match="count"):
+        gmsd_by_region(view, view, np.full((4, 4), 2), 2, channel_axis=None)
+    with pytest.raises(ValueError, match="even"):
+        gmsd_by_region(np.zeros((7, 8)), np.zeros((7, 8)), np.zeros((3, 4), int), 1, channel_axis=None)
 
 
 def test_pixel_saving_log_linear_by_hand():
