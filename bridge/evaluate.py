@@ -60,7 +60,9 @@ def mesh_arrays(objects, uv_name):
     return mesh.V, mesh.F, mesh.uv
 
 
-def _cameras(V, cams):
+def _dodecahedron_views(V):
+    """The 20 evaluation cameras around vertices ``V`` (Eq. 22), as Blender cameras."""
+    cams = dodecahedron_cameras(V)
     return [Camera(position=tuple(cams.positions[i]), look_at=tuple(cams.look_at), up=tuple(cams.up[i]),
                    fov_degrees=cams.fov_degrees, clip_start=cams.clip_start, clip_end=cams.clip_end)
             for i in range(len(cams))]
@@ -85,7 +87,7 @@ def render_views(objects, *, uv_name, image=None, screen_pixels=512):
     """
     objects = list(objects)
     V, _, _ = mesh_arrays(objects, uv_name)
-    cameras = _cameras(V, dodecahedron_cameras(V))
+    cameras = _dodecahedron_views(V)
     with WorkbenchRenderer(width=int(screen_pixels), texture_values="stored") as renderer:
         for obj in objects:
             renderer.add_object(obj, uv_name=uv_name, image=image)
@@ -124,7 +126,7 @@ def face_id_views(objects, *, screen_pixels=512):
     face = np.arange(m)
     texel_centre = np.column_stack([(face % width + 0.5) / width, (face // width + 0.5) / height])
     uv = np.repeat(texel_centre[:, None, :], 3, axis=1)
-    cameras = _cameras(V, dodecahedron_cameras(V))
+    cameras = _dodecahedron_views(V)
     with WorkbenchRenderer(width=int(screen_pixels), texture_values="stored") as renderer:
         renderer.add_arrays(V, F, uv, texture)
         views = [renderer.render(camera) for camera in cameras]
