@@ -176,7 +176,7 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     Parameters
     ----------
     triangles : core.trianglewise.TrianglewiseResult
-        Of every face; its ``fit_weights()`` weigh the fit, as in the pipeline.
+        Of every face; its ``fit_targets()`` and ``fit_weights()`` drive the fit, as in the pipeline.
     weights : {"perceptual", "identity"}
     formulation : {"perceptual", "common"}
     rotation_scale : float, optional
@@ -186,7 +186,8 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     start = time.perf_counter()
     _, F, uv = mesh_arrays(objects, source_uv)
     w_R, w_S = triangles.fit_weights(rotation_scale=rotation_scale)
-    result = solve_meshwise(F, uv, triangles.params, w_R, w_S, weights=weights, formulation=formulation)
+    params = triangles.fit_targets(uv, texture_luma(_texture(objects)))
+    result = solve_meshwise(F, uv, params, w_R, w_S, weights=weights, formulation=formulation)
     uv_fit, _ = restore_folded_charts(uv, result.uv, result.topology.face_chart)
     t_mesh = time.perf_counter() - start
     _write(objects, name, uv_fit)

@@ -354,7 +354,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock)
         times["triangle"] = time.perf_counter() - clock
         # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
-        params, w_R, w_S = validated.targets(triangles.params, *triangles.fit_weights())
+        params, w_R, w_S = validated.targets(triangles.fit_targets(uv_in, luma), *triangles.fit_weights())
 
         clock = time.perf_counter()
         stage = iter_solve_meshwise(F, uv_in, params, w_R, w_S)

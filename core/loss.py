@@ -50,8 +50,8 @@ from .gmsd import (GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, _pool
 from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
 from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
 
-__all__ = ["TriangleProblem", "TriangleBatch", "texture_luma", "triangle_problem", "prepare_triangles",
-           "render_reference"]
+__all__ = ["TriangleProblem", "TriangleBatch", "texture_luma", "textured_triangles", "triangle_problem",
+           "prepare_triangles", "render_reference"]
 
 
 
@@ -72,6 +72,38 @@ def texture_luma(texture):
     if texture.shape[0] < 1 or texture.shape[1] < 1:
         raise ValueError(f"texture is empty: {texture.shape}")
     return np.ascontiguousarray(_to_luma(texture, channel_axis=-1 if texture.ndim == 3 else None))
+
+
+def textured_triangles(uv, luma):
+    """Which triangles show texture of their own: the texels their bilinear lookups read are not all equal.
+
+    Parameters
+    ----------
+    uv : (m, 3, 2) array_like of float64
+        Per-corner UVs.
+    luma : (h, w) or (h, w, c) array_like
+        Texture (row 0 = bottom), as for :func:`prepare_triangles`; it repeats outside ``[0, 1]^2``.
+
+    Returns
+    -------
+    (m,) ndarray of bool
+        False where one value fills every texel any point of the triangle reads (constant texture, or a
+        triangle inside a flat area whose neighbours may differ).
+
+    Notes
+    -----
+    Exact for bilinear lookups: texel ``t`` is read when some point of the triangle lies less than one texel
+    from its centre in both axes.
+    """
+    luma = texture_luma(luma)
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.ndim != 3 or uv.shape[1:] != (3, 2):
+        raise ValueError(f"uv must have shape (m, 3, 2), got {uv.shape}")
+    if not np.isfinite(uv).all():
+        raise ValueError("uv must be finite")
+    h, w = luma.shape
+    corners = uv * np.array([w, h], dtype=np.float64)
+    return np.array([not _triangle_reads_one_value(luma, *face) for face in corners], dtype=bool)
 
 
 def _check_inputs(V, F, uv):
@@ -149,6 +181,53 @@ def _constant_kernel(luma, points, centre):
             col += 1
             if col == w:
                 col = 0
+    return True
+
+
+@njit
+def _triangle_reads_one_value(luma, a, b, c):
+    """True when every texel that a bilinear lookup at a point of triangle ``abc`` (texel units) reads has the
+    same luma. A lookup at ``x`` reads texel ``t`` (centre ``t + 1/2``) when ``|x - t - 1/2|_inf < 1``, so
+    ``t`` is read when the triangle meets the open square of half-width 1 around that centre; separating
+    axes: x, y and the edge normals (an edge of zero length has none)."""
+    h, w = luma.shape
+    xs = (a[0], b[0], c[0])
+    ys = (a[1], b[1], c[1])
+    corners = (a, b, c)
+    normals = np.zeros((3, 2))
+    for e in range(3):
+        p, q = corners[e], corners[(e + 1) % 3]
+        normals[e, 0] = q[1] - p[1]
+        normals[e, 1] = p[0] - q[0]
+    first = True
+    value = 0.0
+    for ty in range(int(np.floor(min(ys) - 1.5)), int(np.ceil(max(ys) + 0.5)) + 1):
+        if not (min(ys) < ty + 1.5 and max(ys) > ty - 0.5):
+            continue
+        for tx in range(int(np.floor(min(xs) - 1.5)), int(np.ceil(max(xs) + 0.5)) + 1):
+            if not (min(xs) < tx + 1.5 and max(xs) > tx - 0.5):
+                continue
+            separated = False
+            for e in range(3):
+                nx, ny = normals[e, 0], normals[e, 1]
+                if nx == 0.0 and ny == 0.0:
+                    continue
+                low = high = nx * a[0] + ny * a[1]
+                for k in range(1, 3):
+                    d = nx * corners[k][0] + ny * corners[k][1]
+                    low, high = min(low, d), max(high, d)
+                centre = nx * (tx + 0.5) + ny * (ty + 0.5)
+                reach = abs(nx) + abs(ny)
+                if high <= centre - reach or low >= centre + reach:
+                    separated = True
+                    break
+            if separated:
+                continue
+            texel = luma[ty % h, tx % w]
+            if first:
+                value, first = texel, False
+            elif texel != value:
+                return False
     return True
 
 

@@ -45,6 +45,9 @@ Decisions (the paper leaves them open):
   Both formulations return the best evaluated point that satisfies ``E <= epsilon`` by the exact criterion
   (area, or Eq. 14 with the true barrier); the identity is always evaluated first, so one exists whenever
   the input itself is within the bound (``E(identity) ~ 1e-12``).
+* The mesh-wise stage gets the optimum with a floor in texels on each stretch of a textured triangle
+  (:meth:`TrianglewiseResult.fit_targets`): App. A's 64 px view magnifies a triangle a few texels wide until
+  its texture looks smooth, and the box floor would leave it a fraction of a texel.
 * Weights (Eq. 17) are population variances of E over fixed samples, the other parameters at the optimum:
   ``w_R`` over ``alpha`` at the 8 midpoints ``(k + 1/2) pi / 16`` of ``[0, pi/2)`` (E is ``pi/2``-periodic
   in ``alpha`` and the midpoint rule is the exact-for-trigonometric-polynomials rule for periodic
@@ -77,11 +80,11 @@ import numpy as np
 
 from . import bayesopt
 from .camera import texel_matched_pixels
-from .loss import prepare_triangles
+from .loss import _uv_area, prepare_triangles, texture_luma, textured_triangles
 from .one_ring import one_ring_faces
 from .progress import run_generator
 
-__all__ = ["WorkerDiedError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "TriangleOptimum", "TrianglewiseResult",
+__all__ = ["WorkerDiedError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS", "TriangleOptimum", "TrianglewiseResult",
            "finite_barrier", "sensitivity_weights", "optimize_triangle", "iter_optimize_triangles",
            "optimize_triangles", "losses_at"]
 
@@ -92,6 +95,7 @@ STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
 TOLERANCE = None
 STRETCH_WEIGHT_FLOOR = 1e-6
+MIN_TEXELS = 2.0
 ROTATION_WEIGHT_SCALE = 0.0
 _QUARTER = 0.5 * math.pi
 _FORMULATIONS = ("constrained", "barrier")
@@ -369,6 +373,7 @@ class TrianglewiseResult:
 
     See Also
     --------
+    TrianglewiseResult.fit_targets : the targets the mesh-wise stage should use.
     TrianglewiseResult.fit_weights : the weights the mesh-wise stage should use.
     """
 
@@ -384,6 +389,74 @@ class TrianglewiseResult:
     lambda_min: float
     formulation: str
     backend: str
+
+    def fit_targets(self, uv, luma, *, min_texels=MIN_TEXELS):
+        """Targets for the mesh-wise fit: :attr:`params` with no stretch of a textured triangle below the texel
+        floor ``lambda >= sqrt(min_texels / A)``, ``A`` its input area in texels (at most 1).
+
+        Parameters
+        ----------
+        uv : (m, 3, 2) array_like of float64
+            The input per-corner UVs the stage ran on (rows :attr:`faces` are used).
+        luma : (h, w) or (h, w, c) array_like
+            Its texture, as given to :func:`optimize_triangles`.
+        min_texels : float, optional
+            Texel area a textured triangle keeps when both stretches sit at the floor (0 gives :attr:`params`).
+
+        Returns
+        -------
+        (k, 4) float64 ndarray
+            ``(alpha, lambda1, lambda2, beta)`` per face of :attr:`faces`; only the lambdas change, and only on
+            triangles whose own texels vary (:func:`.loss.textured_triangles`).
+
+        Notes
+        -----
+        App. A's view is at least 64 px wide whatever the triangle's size in texels, so a triangle spanning a
+        few texels is seen magnified (6 to 30 times for tea_set's median triangle of 10 texels across), where
+        bilinear lookups turn its texture into smooth ramps: GMSD stays below epsilon at the box floor
+        ``lambda = 0.1`` and the triangle is left with a fraction of a texel (tea_set: 55 % of the faces, a
+        median of 0.06 texels). In the whole-model views (Sec. 5.1) those triangles are then blurred and their
+        chart borders smeared. The same holds along one axis: most triangles the floor raises on spot cross
+        the edge of a spot and were squeezed along it (a median of 5.8 between their two stretches). The
+        floor is stated in texels because App. A's view misjudges triangles a few texels wide only; triangles
+        whose own texels are all equal (78 % of spot's faces, 83 % of bob's) need no texels of their own and
+        keep their targets: without that exception the floor of 2 texels gives spot 3.9e-3 at c_r = 0.3
+        instead of 4.1e-4 (bob 7.9e-4 instead of 7.4e-4). Floors of 1, 2, 4 and 8 texels were measured on eight
+        models (docs/DECISIONS.md): 2 is the best on tea_set and WaterBottle; larger floors help spot, bob and
+        the sofa a little more but cost BoomBox and tea_set (8 texels: 3.9e-3 and 9.3e-4 at c_r = 0.3).
+        Measured with the triangle-wise results of the default settings (seed 0), q_r at c_r = 0.2 / 0.3 / 0.5
+        (512 px, 20 views), ``min_texels`` 0 -> 2:
+
+        ==========  =============================  =============================
+        model       0                              2
+        ==========  =============================  =============================
+        spot        1.44e-3 / 8.62e-4 / 4.09e-4    7.44e-4 / 4.08e-4 / 1.89e-4
+        tea_set     1.96e-3 / 1.45e-3 / 8.97e-4    1.10e-3 / 7.33e-4 / 4.28e-4
+        bob         1.29e-3 / 7.54e-4 / 4.24e-4    1.23e-3 / 7.40e-4 / 4.00e-4
+        BoomBox     5.23e-3 / 3.25e-3 / 1.80e-3    5.33e-3 / 3.54e-3 / 1.94e-3
+        ==========  =============================  =============================
+
+        References
+        ----------
+        Sun et al. 2022, Eq. 13-14 (the stretches), App. A (the view).
+        """
+        if not (np.isfinite(min_texels) and min_texels >= 0):
+            raise ValueError(f"min_texels must be a non-negative number, got {min_texels}")
+        luma = texture_luma(luma)
+        uv = np.asarray(uv, dtype=np.float64)
+        if uv.ndim != 3 or uv.shape[1:] != (3, 2) or (len(self.faces) and self.faces.max() >= len(uv)):
+            raise ValueError(f"uv must have shape (m, 3, 2) with a row for every face of the result, got "
+                             f"{uv.shape}")
+        params = np.array(self.params, dtype=np.float64)
+        if min_texels == 0:
+            return params
+        uv = uv[self.faces]
+        area = _uv_area(uv, luma.shape[1], luma.shape[0])
+        with np.errstate(divide="ignore"):
+            floor = np.minimum(1.0, np.sqrt(min_texels / area))
+        textured = textured_triangles(uv, luma)
+        params[textured, 1:3] = np.maximum(params[textured, 1:3], floor[textured, None])
+        return params
 
     def fit_weights(self, *, floor=STRETCH_WEIGHT_FLOOR, rotation_scale=ROTATION_WEIGHT_SCALE):
         """Weights for the mesh-wise fit (Eq. 19): ``rotation_scale * w_R`` and ``w_S + floor``.

@@ -348,6 +348,32 @@ def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_w_rs_whatever_the_bo
         result.fit_weights(rotation_scale=-1.0)
 
 
+def test_fit_targets_raise_the_stretches_of_textured_triangles_to_the_texel_floor():
+    """A 16 x 16 texture, random in columns 0-7 and 0.5 in columns 8-15; triangles by hand, in texels."""
+    texture = np.full((16, 16), 0.5)
+    texture[:, :8] = np.random.default_rng(0).random((16, 8))
+    corners = np.array([[(1, 1), (5, 1), (1, 5)],  # 8 texels, textured: floor sqrt(2 / 8) = 0.5
+                        [(11, 11), (13, 11), (11, 13)],  # reads columns 10-13 only: flat, left alone
+                        [(2, 10), (3, 10), (2, 11)],  # 0.5 texels: floor sqrt(2 / 0.5) = 2, capped at 1
+                        [(0.5, 0.5), (8.5, 0.5), (0.5, 8.5)]], float)  # 32 texels: floor 0.25
+    params = np.array([[0.3, 0.1, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 0.1, 0.3, 0.0], [0.1, 0.6, 0.9, 0.4]])
+    result = dataclasses.replace(_result_with_weights(np.zeros(4), np.zeros(4), epsilon=0.01), params=params)
+    uv = corners / 16
+    np.testing.assert_allclose(result.fit_targets(uv, texture, min_texels=2.0),
+                               [[0.3, 0.5, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 1.0, 1.0, 0.0],
+                                [0.1, 0.6, 0.9, 0.4]], rtol=1e-12)
+    np.testing.assert_allclose(result.fit_targets(uv, texture, min_texels=0.5)[0], [0.3, 0.25, 0.5, 0.2])
+    np.testing.assert_array_equal(result.fit_targets(uv, texture, min_texels=0.0), params)
+    # rows follow result.faces: the same two triangles as faces 2 and 0 of a larger mesh
+    subset = dataclasses.replace(result, faces=np.array([2, 0]), params=params[[0, 1]])
+    np.testing.assert_allclose(subset.fit_targets(uv[[1, 1, 0]], texture, min_texels=2.0),
+                               [[0.3, 0.5, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0]], rtol=1e-12)
+    with pytest.raises(ValueError, match="min_texels"):
+        result.fit_targets(uv, texture, min_texels=-1.0)
+    with pytest.raises(ValueError, match="uv"):
+        subset.fit_targets(uv[:2], texture)
+
+
 def test_rotation_targets_that_disagree_bend_a_chart_only_when_weighted():
     """Two triangles of one chart want half their size (lambda = 0.5) and rotations pi/8 apart. Without rotation
     targets (the default) a similarity meets both stretch targets exactly: singular values 0.5 and 0.5. With
