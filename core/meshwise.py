@@ -31,8 +31,13 @@ Decisions (the paper leaves them open):
   orientation of its chart, so mirrored charts (and mirrored triangles inside a chart) need no reflection:
   the barrier and the line search work on det J directly.
 * Degenerate input triangles (input-UV area at most ``degenerate_tol`` times the squared longest edge) have
-  no Jacobian: they get weight 0 (no fit, no barrier), their corners still move with their chart, and they
-  are neither counted as flipped nor allowed to stop the line search.
+  no Jacobian: they get weight 0 (no fit, no barrier), and they are neither counted as flipped nor allowed to
+  stop the line search. Their corners move with their chart: a vertex that only degenerate triangles touch
+  has no energy of its own, so after the fit it is carried by the fitted Jacobian of a valid triangle at the
+  nearest fitted vertex of its chart (:func:`_carry_loose_vertices`). Left where it was, it kept the chart's
+  input extent: WaterBottle's strip of 80 zero-area and 80 thin triangles (a zipper whose loose vertices lie
+  on top of fitted ones) stayed 0.68 long while the rest shrank, and packing left 96 % of the image empty
+  (r = 4478 instead of about 1100 at c_r = 0.3).
 * Gauge: the objective is invariant to translating a chart; the first chart vertex of every chart is held
   fixed, and a tiny diagonal shift (1e-12 of the mean diagonal) keeps vertices that only touch degenerate
   triangles solvable.
@@ -635,6 +640,31 @@ def _smallest_positive_root(a, b, c):
     return float(roots.min()) if roots.size else np.inf
 
 
+def _carry_loose_vertices(x, problem, topology, J):
+    """Places the vertices no valid triangle touches: ``x[n] + J_t (x0[v] - x0[n])``, ``n`` the nearest (in input
+    UVs) vertex of the same chart that a valid triangle ``t`` touches. Charts without a valid triangle stay."""
+    from scipy.spatial import cKDTree
+
+    x0 = topology.vertex_uv
+    corners = problem.corner_vertex[problem.valid]
+    touching = np.full(problem.n_vertices, -1, dtype=np.int64)
+    touching[corners.ravel()] = np.repeat(np.flatnonzero(problem.valid), 3)
+    loose = touching < 0
+    if not loose.any():
+        return x
+    x = x.copy()
+    for chart in np.unique(topology.vertex_chart[loose]):
+        in_chart = topology.vertex_chart == chart
+        fitted = np.flatnonzero(in_chart & ~loose)
+        if fitted.size == 0:
+            continue
+        moving = np.flatnonzero(in_chart & loose)
+        nearest = fitted[cKDTree(x0[fitted]).query(x0[moving])[1]]
+        offset = np.einsum("vij,vj->vi", J[touching[nearest]], x0[moving] - x0[nearest])
+        x[moving] = x[nearest] + offset
+    return x
+
+
 def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", formulation="perceptual",
                         w_rs=1e-5, barrier_weight=1.0, barrier_threshold=0.5, max_iterations=100, tol=1e-7,
                         newton_iterations=1, degenerate_tol=1e-10, topology=None):
@@ -743,6 +773,7 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
             converged = True
             break
 
+    x = _carry_loose_vertices(x, problem, topology, J)
     final_fit, k_final = fit_energy(J, R_bar, S_bar, w_R, w_S, formulation=formulation)
     det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
     return MeshwiseResult(

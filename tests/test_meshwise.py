@@ -239,6 +239,9 @@ def test_degenerate_input_triangle_does_not_stop_the_solve():
     assert np.all(np.isfinite(result.uv))
     # The degenerate triangle's corners still follow their chart vertices.
     np.testing.assert_array_equal(result.uv[2, 0], result.uv[0, 1])
+    # Vertex 4, touched by the degenerate triangle only, was halfway along the edge 1-2: the fit is one affine
+    # map (uniform targets), which carries it to the middle of that edge, so the triangle stays degenerate.
+    np.testing.assert_allclose(result.uv[2, 1], 0.5 * (result.uv[0, 1] + result.uv[0, 2]), atol=1e-12)
 
 
 def test_generator_yields_progress_and_returns_the_result():
