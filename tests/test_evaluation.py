@@ -173,6 +173,13 @@ def test_degenerate_triangles_are_excluded_and_counted():
     collapsed[1] = [[0, 0], [1, 1], [2, 2]]  # UV area 0 but surface area 3
     energy, details = symmetric_dirichlet(V, F, collapsed, normalize=False, full=True)
     assert energy == pytest.approx(3.0) and details["degenerate_uv"] == 1
+    # A sliver: 2 * area / longest^2 = 4e-8 / 8 = 5e-9, below the default 1e-6 ...
+    collapsed[1] = [[0, 0], [1, 1 + 2e-8], [2, 2]]
+    energy, details = symmetric_dirichlet(V, F, collapsed, normalize=False, full=True)
+    assert energy == pytest.approx(3.0) and details["degenerate_uv"] == 1
+    # ... and counted when the tolerance is below it.
+    energy, details = symmetric_dirichlet(V, F, collapsed, normalize=False, full=True, degenerate_tol=1e-9)
+    assert energy > 1e6 and details["degenerate_uv"] == 0
 
 
 def test_dirichlet_validation():
