@@ -102,8 +102,7 @@ def textured_triangles(uv, luma):
     if not np.isfinite(uv).all():
         raise ValueError("uv must be finite")
     h, w = luma.shape
-    corners = uv * np.array([w, h], dtype=np.float64)
-    return np.array([not _triangle_reads_one_value(luma, *face) for face in corners], dtype=bool)
+    return _textured_kernel(luma, np.ascontiguousarray(uv * np.array([w, h], dtype=np.float64)))
 
 
 def _check_inputs(V, F, uv):
@@ -229,6 +228,14 @@ def _triangle_reads_one_value(luma, a, b, c):
             elif texel != value:
                 return False
     return True
+
+
+@njit
+def _textured_kernel(luma, corners):
+    textured = np.empty(corners.shape[0], dtype=np.bool_)
+    for f in range(corners.shape[0]):
+        textured[f] = not _triangle_reads_one_value(luma, corners[f, 0], corners[f, 1], corners[f, 2])
+    return textured
 
 
 @njit
