@@ -147,6 +147,16 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+def _was_interrupted(error):
+    """Whether a KeyboardInterrupt caused ``error``: numba wraps one raised while it loads a compiled kernel in
+    a SystemError, and the interrupt must still cancel cleanly."""
+    while error is not None:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        error = error.__cause__ or error.__context__
+    return False
+
+
 def main(argv=None):
     """Run the CLI; returns the process exit code."""
     import signal
@@ -172,6 +182,11 @@ def main(argv=None):
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
+        print(f"{PROG}: cancelled", file=sys.stderr)
+        return 130
+    except SystemError as error:
+        if not _was_interrupted(error):
+            raise
         print(f"{PROG}: cancelled", file=sys.stderr)
         return 130
     return 0

@@ -75,3 +75,26 @@ def test_bad_input_is_one_line_and_exit_2(args, fragment, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err
     assert fragment in err and err.count("\n") == 1 and err.startswith("perceptual_uv: error: ")
+
+
+def test_an_interrupt_that_numba_wraps_in_a_system_error_still_cancels(monkeypatch, capsys):
+    """Ctrl-C or SIGTERM while numba loads a cached kernel reaches the CLI as a SystemError caused by the
+    KeyboardInterrupt (seen in CI); any other SystemError is not ours to hide."""
+    from perceptual_uv import cli
+
+    def interrupted_in_numba(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as interrupt:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set") from interrupt
+
+    monkeypatch.setattr(cli, "_run", interrupted_in_numba)
+    assert main(["optimize", str(SPOT), "--out", "unused.blend"]) == 130
+    assert capsys.readouterr().err.strip().endswith("cancelled")
+
+    def broken(args):
+        raise SystemError("something else")
+
+    monkeypatch.setattr(cli, "_run", broken)
+    with pytest.raises(SystemError, match="something else"):
+        main(["optimize", str(SPOT), "--out", "unused.blend"])
