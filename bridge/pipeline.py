@@ -112,6 +112,7 @@ def _unique_uv_name(objects, wanted):
 
 
 MAX_UV_MAPS = 8  # Blender's limit per mesh
+LOW_COVERAGE = 0.25  # below it the image holds more than 4 times the texels the cost counts
 
 
 def _one_object_per_mesh(objects):
@@ -373,6 +374,11 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             created.uv_layers.append((obj.data, uv_name))
         resolution = _pack(objects, mesh, uv_name, (width, height), settings, pack_uv_layer)
         uv_out = _read_packed(objects, mesh, uv_name)
+        coverage = texel_cost.uv_area(uv_out)
+        if coverage < LOW_COVERAGE:
+            notes.append(f"the packed UV islands cover {coverage:.0%} of the {resolution} x {resolution} image: it "
+                         f"holds {1 / coverage:.0f} times the texels the cost counts. An island far longer than it "
+                         "is wide sets the packing scale; a seam across it lets the islands pack tighter")
         times["pack"] = time.perf_counter() - clock
 
         yield Progress("bake", 0, 1, f"Baking a {resolution} x {resolution} image")
@@ -406,6 +412,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "input_resolution": [int(width), int(height)],
             "relative_cost": texel_cost.relative_cost(uv_out, resolution, reference_uv=uv_in,
                                                       reference_resolution=(width, height)),
+            "image_coverage": float(coverage),
             "times_s": {key: round(value, 3) for key, value in times.items()},
             "flipped_triangles": int(meshwise.flipped),
             "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),

@@ -165,6 +165,23 @@ def test_the_largest_view_reaches_both_triangle_wise_calls(registered, spot_obj,
     assert seen == {"iter_optimize_triangles": 24, "losses_at": 24}
 
 
+def test_an_image_the_islands_barely_cover_is_reported(registered, spot_obj, tmp_path):
+    """The patch's input UVs squeezed to a fiftieth in v: its islands become strips that pack into a sliver
+    of the square image, which then holds many times the texels the cost counts."""
+    from perceptual_uv.bridge.pipeline import run_to_end
+
+    obj = spot_patch(spot_obj, above=1.0)
+    uv = np.empty(2 * len(obj.data.loops))
+    obj.data.uv_layers["UVMap"].uv.foreach_get("vector", uv)
+    uv = uv.reshape(-1, 2)
+    uv[:, 1] = uv[:, 1].min() + 0.02 * (uv[:, 1] - uv[:, 1].min())
+    obj.data.uv_layers["UVMap"].uv.foreach_set("vector", uv.ravel())
+    report = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path))).report
+    assert report["image_coverage"] < 0.25
+    notes = [note for note in report["notes"] if "cover" in note]
+    assert len(notes) == 1 and f"{report['image_coverage']:.0%} of the" in notes[0]
+
+
 def test_report_fields(registered, spot_obj, tmp_path):
     from perceptual_uv.bridge.pipeline import run_to_end
 
@@ -190,4 +207,10 @@ def test_report_fields(registered, spot_obj, tmp_path):
     assert report["restored_charts"] >= 0
     assert 0 <= report["triangles_within_bound"] <= 1
     assert abs(report["relative_cost"] - 0.3) <= 0.015
+    # the fraction of the image the packed islands cover: their UV area, read back from the new map
+    new = read_mesh(obj, uv_name=report["uv_map"]).uv
+    e1, e2 = new[:, 1] - new[:, 0], new[:, 2] - new[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    assert report["image_coverage"] == pytest.approx(area, rel=1e-9) and 0.25 < area <= 1
+    assert not any("cover" in note for note in report["notes"])
     assert (tmp_path / "spot_texture_perceptual.png").is_file() and report["image_file"].startswith(str(tmp_path))
