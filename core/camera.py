@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .charts import signed_uv_areas
+from .charts import texel_areas
 from .mesh import check_mesh
 
 __all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "TriangleCameras", "triangle_cameras", "texel_matched_pixels"]
@@ -208,7 +208,7 @@ def texel_matched_pixels(V, F, uv, texture_shape, faces=None, *, minimum=64, max
     if uv.shape != (len(np.asarray(F)), 3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2) = {(len(np.asarray(F)), 3, 2)}, got {uv.shape}")
     h, w = texture_shape[:2]
-    texel_area = np.abs(signed_uv_areas(uv[cameras.faces])) * w * h
+    texel_area = texel_areas(uv[cameras.faces], w, h)
     a, b, c = (np.asarray(V, dtype=np.float64)[np.asarray(F)[cameras.faces, k]] for k in range(3))
     surface_area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):

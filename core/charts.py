@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-__all__ = ["UVTopology", "uv_topology", "signed_uv_areas", "validate_faces_and_uv"]
+__all__ = ["UVTopology", "uv_topology", "signed_uv_areas", "texel_areas", "validate_faces_and_uv"]
 
 
 def validate_faces_and_uv(F, uv):
@@ -72,6 +72,21 @@ def signed_uv_areas(uv):
     e1 = uv[:, 1] - uv[:, 0]
     e2 = uv[:, 2] - uv[:, 0]
     return 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+
+def texel_areas(uv, w, h):
+    """Areas of UV triangles in texels of a ``w`` x ``h`` texture.
+
+    Parameters
+    ----------
+    uv : (m, 3, 2) array_like of float
+    w, h : int
+
+    Returns
+    -------
+    (m,) float64 ndarray
+    """
+    return np.abs(signed_uv_areas(uv)) * w * h
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,7 @@ from .bake_lsq import (DEFAULT_RIDGE, _apply_renumber, _band_cholesky_solve, _en
                        _envelope_first, _first_occurrence_ids, _group_by_component, _render_ids,
                        _solve_normal_equations)
 from .camera import triangle_cameras
+from .charts import texel_areas
 from .gmsd import (GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, _pooled_index, covered_gmsd,
                    luma as _to_luma)
 from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
@@ -850,12 +851,6 @@ def _centre_texel(uv_face, w, h):
     return np.floor(bary) + 0.5
 
 
-def _uv_area(uv_faces, w, h):
-    e1 = uv_faces[:, 1] - uv_faces[:, 0]
-    e2 = uv_faces[:, 2] - uv_faces[:, 0]
-    return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * w * h
-
-
 def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE):
     """Build the loss problems of many triangles of one mesh.
 
@@ -929,7 +924,7 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
         offsets[row + 1] = offsets[row] + len(pixel)
     cat = (lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape))
     return TriangleBatch(faces, n, (h, w), offsets, centres, cat(pixels, (0,)).astype(np.int64),
-                         cat(points, (0, 2)), cat(references, (0,)), gradients, _uv_area(uv[faces], w, h),
+                         cat(points, (0, 2)), cat(references, (0,)), gradients, texel_areas(uv[faces], w, h),
                          constant, float(ridge), cat(pooled, (0,)).astype(np.int64), boxes)
 
 

@@ -80,7 +80,8 @@ import numpy as np
 
 from . import bayesopt
 from .camera import texel_matched_pixels
-from .loss import _uv_area, prepare_triangles, texture_luma, textured_triangles
+from .charts import texel_areas
+from .loss import prepare_triangles, texture_luma, textured_triangles
 from .one_ring import one_ring_faces
 from .progress import run_generator
 
@@ -452,7 +453,7 @@ class TrianglewiseResult:
         if min_texels == 0:
             return params
         uv = uv[self.faces]
-        area = _uv_area(uv, luma.shape[1], luma.shape[0])
+        area = texel_areas(uv, luma.shape[1], luma.shape[0])
         with np.errstate(divide="ignore"):
             floor = np.minimum(1.0, np.sqrt(min_texels / area))
         textured = textured_triangles(uv, luma)

@@ -3,7 +3,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from perceptual_uv.core.charts import signed_uv_areas, uv_topology
+from perceptual_uv.core.charts import signed_uv_areas, texel_areas, uv_topology
 from perceptual_uv.core.mesh import read_obj
 
 SPOT = pathlib.Path(__file__).resolve().parent / "data" / "spot" / "spot_triangulated.obj"
@@ -124,3 +124,10 @@ def test_spot_has_the_documented_thirteen_charts():
                                                                  F[f, (j + 1) % 3]: tuple(uv[f, (j + 1) % 3])})
     expected = sorted(e for e, sides in edges.items() if len(sides) == 2 and sides[0] != sides[1])
     np.testing.assert_array_equal(topo.seam_edges, np.array(expected))
+
+
+def test_texel_areas_count_texels_of_both_orientations():
+    # Legs 0.5 and 0.25 of the unit square on a 64 x 32 texture: 0.5 * 0.5 * 0.25 * 64 * 32 = 128 texels,
+    # whichever way the corners run.
+    uv = np.array([[[0, 0], [0.5, 0], [0, 0.25]], [[0, 0], [0, 0.25], [0.5, 0]]])
+    np.testing.assert_allclose(texel_areas(uv, 64, 32), [128, 128])
