@@ -100,23 +100,24 @@ def _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, call
 
 
 def _texture_channels(texture, channels):
-    texture = np.asarray(texture, dtype=np.float64)
+    texture = np.asarray(texture)
     if texture.ndim not in (2, 3) or texture.shape[0] < 2 or texture.shape[1] < 2:
         raise ValueError(f"texture must have shape (h, w) or (h, w, c) with h, w >= 2, got {texture.shape}")
     if not np.all(np.isfinite(texture)):
         raise ValueError("texture holds NaN or infinite values")
     if channels not in ("all", "luma"):
         raise ValueError(f"channels must be 'all' or 'luma', got {channels!r}")
+    # One contiguous float64 copy: _bilinear_gradient gathers from its flat rows once per chunk.
     if texture.ndim == 2:
-        return texture[..., None]
+        return np.ascontiguousarray(texture[..., None], dtype=np.float64)
     c = texture.shape[2]
     if c == 1:
-        return texture
+        return np.ascontiguousarray(texture, dtype=np.float64)
     if c not in (3, 4):
         raise ValueError(f"expected 1, 3 or 4 texture channels, got {c}")
     if channels == "luma":
-        return (texture[..., :3] @ _LUMA)[..., None]
-    return texture[..., :3]
+        return (texture[..., :3].astype(np.float64) @ _LUMA)[..., None]
+    return np.ascontiguousarray(texture[..., :3], dtype=np.float64)
 
 
 def _subdivision_barycentrics(k):

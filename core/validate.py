@@ -155,7 +155,8 @@ def memory_estimate(n_vertices, n_triangles, texture_shape, *, workers=1, screen
     -------
     total : int
     parts : dict of str to int
-        ``texture`` (the float32 pixels, the float64 luma and the bake's float RGBA copy), ``workers``
+        ``texture`` (the float32 pixels, the float64 luma, and the larger of the bake's float RGBA copy and
+        signal stretch's float64 colour copy, which are never held together), ``workers``
         (copies of luma and mesh in the worker processes), ``triangle-wise`` (per-chunk preparation),
         ``mesh-wise`` (the sparse solve).
     """
@@ -167,7 +168,7 @@ def memory_estimate(n_vertices, n_triangles, texture_shape, *, workers=1, screen
     pixels = h * w
     mesh_bytes = n_vertices * 24 + n_triangles * (24 + 48 + 24 + 8 * 3)
     parts = {
-        "texture": pixels * (4 * c + 8 + 16),
+        "texture": pixels * (4 * c + 8 + max(16, 8 * min(c, 3))),
         "workers": (workers if workers > 1 else 0) * (pixels * 8 + mesh_bytes),
         "triangle-wise": max(workers, 1) * _CHUNK * screen_pixels ** 2 * _PREPARE_BYTES_PER_PIXEL + mesh_bytes,
         "mesh-wise": n_triangles * _MESHWISE_BYTES_PER_TRIANGLE,

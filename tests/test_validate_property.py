@@ -177,7 +177,7 @@ def test_triangles_not_showing_the_texture_are_skipped():
 def test_memory_budget_message_carries_the_estimate():
     total, parts = memory_estimate(100_000, 200_000, (8192, 8192, 4), workers=2, screen_pixels=64)
     assert total == sum(parts.values())
-    assert parts["texture"] == 8192 * 8192 * (16 + 8 + 16) and parts["mesh-wise"] == 200_000 * 9_000
-    with pytest.raises(ValueError, match=r"needs about 5\.\d\d GiB \(texture 2\.50 GiB, workers 1\.\d\d GiB.*"
+    assert parts["texture"] == 8192 * 8192 * (16 + 8 + 24) and parts["mesh-wise"] == 200_000 * 9_000
+    with pytest.raises(ValueError, match=r"needs about 5\.\d\d GiB \(texture 3\.00 GiB, workers 1\.\d\d GiB.*"
                                          r"more than the memory budget of 4\.00 GiB"):
         check_memory_budget(100_000, 200_000, (8192, 8192, 4), workers=2, memory_budget=4 * 2**30)
