@@ -184,9 +184,11 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     """
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
-    _, F, uv = mesh_arrays(objects, source_uv)
+    V, F, uv = mesh_arrays(objects, source_uv)
+    texture = _texture(objects)
     w_R, w_S = triangles.fit_weights(rotation_scale=rotation_scale)
-    params = triangles.fit_targets(uv, texture_luma(_texture(objects)))
+    signal, _, _ = ssp_targets(V, F, uv, texture)
+    params = triangles.fit_targets(uv, texture_luma(texture), signal_targets=signal)
     result = solve_meshwise(F, uv, params, w_R, w_S, weights=weights, formulation=formulation)
     uv_fit, _ = restore_folded_charts(uv, result.uv, result.topology.face_chart)
     t_mesh = time.perf_counter() - start

@@ -312,6 +312,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     from ..core.loss import texture_luma
     from ..core.meshwise import iter_solve_meshwise
     from ..core.overlap import restore_folded_charts
+    from ..core.ssp import ssp_targets
     from ..core.trianglewise import iter_optimize_triangles, losses_at
     from .bake import bake_base_color
     from .mesh_io import write_uv_layer
@@ -354,10 +355,13 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                         workers=settings.workers, seed=settings.seed, faces=faces)
         triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock)
         times["triangle"] = time.perf_counter() - clock
-        # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
-        params, w_R, w_S = validated.targets(triangles.fit_targets(uv_in, luma), *triangles.fit_weights())
 
         clock = time.perf_counter()
+        yield Progress("mesh", 0, 1, "Measuring the texture's signal stretch")
+        # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
+        signal, _, _ = ssp_targets(V, F, uv_in, texture)
+        params, w_R, w_S = validated.targets(triangles.fit_targets(uv_in, luma, signal_targets=signal),
+                                             *triangles.fit_weights())
         stage = iter_solve_meshwise(F, uv_in, params, w_R, w_S)
         meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit", clock)
         uv_fit, restored = restore_folded_charts(uv_in, meshwise.uv, meshwise.topology.face_chart)

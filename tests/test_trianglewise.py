@@ -374,6 +374,40 @@ def test_fit_targets_raise_the_stretches_of_textured_triangles_to_the_texel_floo
         subset.fit_targets(uv[:2], texture)
 
 
+def test_fit_targets_draw_textured_areas_towards_signal_stretch_geometrically():
+    """The triangles of the texel-floor test, no floor. Own areas a = lambda1 lambda2: 0.05, (flat), 0.03, 0.54;
+    signal-stretch areas b: 0.04, (flat), 0.01, 0.18. a / b over the textured rows: 1.25, 3, 3, median s = 3,
+    so s b = 0.12, 0.03, 0.54: rows 2 and 3 already agree, row 0's area becomes 0.05^(1 - w) 0.12^w, both its
+    stretches scaled by (0.12 / 0.05)^(w / 2) = 2.4^(w / 2)."""
+    texture = np.full((16, 16), 0.5)
+    texture[:, :8] = np.random.default_rng(0).random((16, 8))
+    corners = np.array([[(1, 1), (5, 1), (1, 5)], [(11, 11), (13, 11), (11, 13)], [(2, 10), (3, 10), (2, 11)],
+                        [(0.5, 0.5), (8.5, 0.5), (0.5, 8.5)]], float)
+    params = np.array([[0.3, 0.1, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 0.1, 0.3, 0.0], [0.1, 0.6, 0.9, 0.4]])
+    signal = np.array([[0.0, 0.2, 0.2, 0.0], [0.0, 0.5, 0.5, 0.0], [0.0, 0.1, 0.1, 0.0], [0.0, 0.3, 0.6, 0.7]])
+    result = dataclasses.replace(_result_with_weights(np.zeros(4), np.zeros(4), epsilon=0.01), params=params)
+    uv = corners / 16
+
+    def targets(weight, signal=signal):
+        return result.fit_targets(uv, texture, min_texels=0.0, signal_targets=signal, signal_weight=weight)
+
+    for weight in (0.5, 1.0):
+        expected = params.copy()
+        expected[0, 1:3] *= 2.4 ** (weight / 2)
+        np.testing.assert_allclose(targets(weight), expected, rtol=1e-12)
+    np.testing.assert_array_equal(targets(0.0), params)
+    np.testing.assert_array_equal(result.fit_targets(uv, texture, min_texels=0.0), params)
+    # b = 1 on row 0: a / b = 0.05, 3, 3, s b = 3 on row 0, stretches scaled by sqrt(60): 0.5 sqrt(60) is capped at 1.
+    np.testing.assert_allclose(targets(1.0, np.where(np.arange(4)[:, None] == 0, [0.0, 1.0, 1.0, 0.0], signal))[0],
+                               [0.3, 0.1 * np.sqrt(60), 1.0, 0.2], rtol=1e-12)
+    with pytest.raises(ValueError, match="signal_weight"):
+        targets(1.5)
+    with pytest.raises(ValueError, match="signal_targets"):
+        targets(0.5, signal[:3])
+    with pytest.raises(ValueError, match="signal_targets"):
+        targets(0.5, np.where(np.arange(4)[:, None] == 2, 0.0, signal))
+
+
 def test_rotation_targets_that_disagree_bend_a_chart_only_when_weighted():
     """Two triangles of one chart want half their size (lambda = 0.5) and rotations pi/8 apart. Without rotation
     targets (the default) a similarity meets both stretch targets exactly: singular values 0.5 and 0.5. With
