@@ -62,16 +62,16 @@ def attribute_model(path, *, methods, cost, screen, evaluations, epsilon, triang
     from ..bridge.mesh_io import import_model
     from ..core.charts import uv_topology
     from ..core.evaluation import gmsd_by_region
-    from .compare import _UVMaps
+    from .compare import UVMaps
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     import_model(path)
     objects = textured_objects()
     source = objects[0].data.uv_layers.active.name
     _, F, uv = mesh_arrays(objects, source)
-    maps = _UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=0,
+    maps = UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=0,
                    cache=None if triangles is None else (triangles, path.stem))
-    result = maps._targets(epsilon)
+    result = maps.triangles(epsilon)
     at_floor = result.params[:, 1:3].max(axis=1) <= 1.05 * result.lambda_min
     chart = uv_topology(F, uv).face_chart
     labels = [region_labels(ids, chart, at_floor) for ids in face_id_views(objects, screen_pixels=screen)]

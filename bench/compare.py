@@ -48,7 +48,7 @@ def _epsilon_method(epsilon):
     return f"ours_eps{epsilon:g}"
 
 
-class _UVMaps:
+class UVMaps:
     """Makes one UV map per method on the objects (the triangle-wise stage runs once per epsilon) and keeps times."""
 
     def __init__(self, objects, source, *, evaluations, epsilon, workers, cache=None):
@@ -57,7 +57,8 @@ class _UVMaps:
         self.cache = cache  # (folder, model stem) or None
         self.times, self._triangles = {}, {}
 
-    def _targets(self, epsilon):
+    def triangles(self, epsilon):
+        """The triangle-wise result at ``epsilon``: run once per epsilon, or read from the cache."""
         from ..bridge import baselines
 
         if epsilon not in self._triangles:
@@ -88,7 +89,7 @@ class _UVMaps:
             baselines.sspop_uv(objects, source_uv=source, name=name)
         elif method != "input":
             eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else self.epsilon
-            triangles = self._targets(eps)
+            triangles = self.triangles(eps)
             start = time.perf_counter()  # the triangle-wise time is reported on its own
             kw = {"ours_common": {"formulation": "common"}, "ours_identity": {"weights": "identity"},
                   "ours_rotation": {"rotation_scale": 1.0}}.get(method, {})
@@ -186,7 +187,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     V, F, uv = mesh_arrays(objects, source)
     r_input = reference_resolution(objects)
     reference = render_views(objects, uv_name=source, screen_pixels=screen)
-    maps = _UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers,
+    maps = UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers,
                    cache=None if triangles is None else (triangles, stem))
     names, results = {}, {}
     # Blender keeps at most 8 UV maps per mesh: each map is evaluated as soon as it exists and then removed,
