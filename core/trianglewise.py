@@ -412,9 +412,7 @@ class TrianglewiseResult:
             In [0, 1]. A textured triangle's target area becomes ``a^(1 - w) (s b)^w``: ``a`` its own (after the
             floor), ``b`` the signal-stretch area, ``s`` the median of ``a / b`` over the textured triangles (SSP
             fixes areas only up to a common factor). Each triangle keeps its own stretch ratio and orientation,
-            except where the floor set both stretches: that isotropic target is a guess, not a measurement, so
-            those triangles take signal stretch's ratio and orientation. No stretch exceeds 1 (Eq. 14). 0
-            leaves the targets as the floor left them.
+            and no stretch exceeds 1 (Eq. 14). 0 leaves the areas alone.
 
         Returns
         -------
@@ -470,11 +468,7 @@ class TrianglewiseResult:
         YcbBanana    9.74e-5 / 7.06e-5 / 5.03e-5    1.05e-4 / 7.50e-5 / 5.38e-5
         ===========  =============================  =============================
 
-        (Avocado and the bookshelf gain 2-19 %.) Taking signal stretch's shape where the floor set both
-        stretches (74 % of the bookshelf's faces, 64 % of tea_set's, 1 % of spot's) moves the bookshelf from
-        3.79e-2 / 2.71e-2 / 1.47e-2 to 3.42e-2 / 2.30e-2 / 1.24e-2 and spot and tea_set by less than 2 %; taking
-        it wherever the floor raised a stretch costs spot 43 % (4.58e-4 at c_r = 0.3), whose triangles across
-        a spot's edge keep the view's anisotropy along the other axis. A weight of 0.7 helps the sofa and WaterBottle further
+        (Avocado and the bookshelf gain 2-19 %.) A weight of 0.7 helps the sofa and WaterBottle further
         (5.90e-3 and 1.42e-3 at c_r = 0.3) but costs CesiumMan, bob, Avocado and YcbBanana (mean pixel saving
         0.262 against 0.265); the blend without the texel floor loses on spot (4.42e-4) and tea_set (7.54e-4).
 
@@ -504,16 +498,12 @@ class TrianglewiseResult:
         uv = uv[self.faces]
         area = texel_areas(uv, luma.shape[1], luma.shape[0])
         textured = textured_triangles(uv, luma)
-        floored = np.zeros(len(params), dtype=bool)
         if min_texels > 0:
             with np.errstate(divide="ignore"):
                 floor = np.minimum(1.0, np.sqrt(min_texels / area))
-            floored = textured & np.all(params[:, 1:3] < floor[:, None], axis=1)
             params[textured, 1:3] = np.maximum(params[textured, 1:3], floor[textured, None])
         if blend:
-            signal = signal_targets[self.faces]
-            _blend_areas(params, signal, textured & (area > 0), signal_weight)
-            _take_shapes(params, signal, floored & (area > 0))
+            _blend_areas(params, signal_targets[self.faces], textured & (area > 0), signal_weight)
         return params
 
     def fit_weights(self, *, floor=STRETCH_WEIGHT_FLOOR, rotation_scale=ROTATION_WEIGHT_SCALE):
@@ -576,16 +566,6 @@ def _blend_areas(params, other, rows, weight):
     log_target = np.log(own) - weight * (log_ratio - np.median(log_ratio))
     params[rows, 1:3] *= np.exp(0.5 * (log_target - np.log(own)))[:, None]
     np.minimum(params[:, 1:3], 1.0, out=params[:, 1:3])
-
-
-def _take_shapes(params, other, rows):
-    """In place: ``params[rows]`` take the stretch ratio and orientation of ``other[rows]`` at their own area;
-    stretches at most 1."""
-    area = params[rows, 1] * params[rows, 2]
-    ratio = other[rows, 1] / other[rows, 2]
-    params[rows, 1] = np.minimum(np.sqrt(area * ratio), 1.0)
-    params[rows, 2] = np.minimum(np.sqrt(area / ratio), 1.0)
-    params[rows, 3] = other[rows, 3]
 
 
 def _face_seed(seed, face):
