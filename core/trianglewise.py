@@ -85,9 +85,9 @@ from .loss import prepare_triangles, texture_luma, textured_triangles
 from .one_ring import one_ring_faces
 from .progress import run_generator
 
-__all__ = ["WorkerDiedError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS", "SIGNAL_WEIGHT", "TriangleOptimum", "TrianglewiseResult",
-           "finite_barrier", "sensitivity_weights", "optimize_triangle", "iter_optimize_triangles",
-           "optimize_triangles", "losses_at"]
+__all__ = ["WorkerDiedError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS", "SIGNAL_WEIGHT", "TriangleOptimum",
+           "TrianglewiseResult", "finite_barrier", "sensitivity_weights", "optimize_triangle",
+           "iter_optimize_triangles", "optimize_triangles", "losses_at"]
 
 LAMBDA_MIN = 0.1
 MAX_SCREEN_PIXELS = 256
@@ -452,8 +452,8 @@ class TrianglewiseResult:
         (Bayesian optimization with 100 evaluations: q_r moves up to 20 % with the seed on spot), made at the
         magnification of a 64 px view rather than at the density the whole model is seen at; SSP's expected
         stretch (Sander et al. 2002) is another, from the texture's gradients over the surface alone. Their
-        geometric mean ranks the triangles better than the stage's own areas on 8 of the 10 bundled and shared
-        models, q_r at c_r = 0.2 / 0.3 / 0.5 (512 px, 20 views), ``signal_weight`` 0 -> 0.5:
+        geometric mean ranks the triangles better than the stage's own areas on 8 of the 10 models of
+        docs/results, q_r at c_r = 0.2 / 0.3 / 0.5 (512 px, 20 views), ``signal_weight`` 0 -> 0.5:
 
         ===========  =============================  =============================
         model        0                              0.5
@@ -463,7 +463,7 @@ class TrianglewiseResult:
         spot         7.50e-4 / 4.15e-4 / 1.82e-4    5.90e-4 / 3.20e-4 / 1.59e-4
         tea_set      1.10e-3 / 7.33e-4 / 4.28e-4    1.03e-3 / 6.60e-4 / 3.92e-4
         BoomBox      5.33e-3 / 3.54e-3 / 1.85e-3    5.17e-3 / 3.31e-3 / 1.84e-3
-        bob          1.24e-3 / 7.53e-4 / 3.98e-4    1.18e-3 / 6.98e-4 / 3.75e-4
+        bob          1.24e-3 / 7.53e-4 / 3.98e-4    1.18e-3 / 6.97e-4 / 3.75e-4
         CesiumMan    3.87e-3 / 2.32e-3 / 1.31e-3    3.96e-3 / 2.42e-3 / 1.34e-3
         YcbBanana    9.74e-5 / 7.06e-5 / 5.03e-5    1.05e-4 / 7.50e-5 / 5.38e-5
         ===========  =============================  =============================
