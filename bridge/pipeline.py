@@ -358,8 +358,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         clock = time.perf_counter()
         yield Progress("mesh", 0, 1, "Measuring the texture's signal stretch")
-        # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
         signal, _, _ = ssp_targets(V, F, uv_in, texture)
+        # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
         params, w_R, w_S = validated.targets(triangles.fit_targets(uv_in, luma, signal_targets=signal),
                                              *triangles.fit_weights())
         stage = iter_solve_meshwise(F, uv_in, params, w_R, w_S)

@@ -563,8 +563,7 @@ def _blend_areas(params, other, rows, weight):
     if not np.all(np.isfinite(theirs) & (theirs > 0)):
         raise ValueError("signal_targets must have positive, finite stretches")
     log_ratio = np.log(own) - np.log(theirs)
-    log_target = np.log(own) - weight * (log_ratio - np.median(log_ratio))
-    params[rows, 1:3] *= np.exp(0.5 * (log_target - np.log(own)))[:, None]
+    params[rows, 1:3] *= np.exp(-0.5 * weight * (log_ratio - np.median(log_ratio)))[:, None]
     np.minimum(params[:, 1:3], 1.0, out=params[:, 1:3])
 
 

@@ -348,8 +348,9 @@ def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_w_rs_whatever_the_bo
         result.fit_weights(rotation_scale=-1.0)
 
 
-def test_fit_targets_raise_the_stretches_of_textured_triangles_to_the_texel_floor():
-    """A 16 x 16 texture, random in columns 0-7 and 0.5 in columns 8-15; triangles by hand, in texels."""
+def _hand_placed_targets():
+    """A 16 x 16 texture, random in columns 0-7 and 0.5 in columns 8-15; four triangles by hand, in texels,
+    with their triangle-wise params: texture, uv, params, result."""
     texture = np.full((16, 16), 0.5)
     texture[:, :8] = np.random.default_rng(0).random((16, 8))
     corners = np.array([[(1, 1), (5, 1), (1, 5)],  # 8 texels, textured: floor sqrt(2 / 8) = 0.5
@@ -358,7 +359,11 @@ def test_fit_targets_raise_the_stretches_of_textured_triangles_to_the_texel_floo
                         [(0.5, 0.5), (8.5, 0.5), (0.5, 8.5)]], float)  # 32 texels: floor 0.25
     params = np.array([[0.3, 0.1, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 0.1, 0.3, 0.0], [0.1, 0.6, 0.9, 0.4]])
     result = dataclasses.replace(_result_with_weights(np.zeros(4), np.zeros(4), epsilon=0.01), params=params)
-    uv = corners / 16
+    return texture, corners / 16, params, result
+
+
+def test_fit_targets_raise_the_stretches_of_textured_triangles_to_the_texel_floor():
+    texture, uv, params, result = _hand_placed_targets()
     np.testing.assert_allclose(result.fit_targets(uv, texture, min_texels=2.0),
                                [[0.3, 0.5, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 1.0, 1.0, 0.0],
                                 [0.1, 0.6, 0.9, 0.4]], rtol=1e-12)
@@ -379,14 +384,8 @@ def test_fit_targets_draw_textured_areas_towards_signal_stretch_geometrically():
     signal-stretch areas b: 0.04, (flat), 0.01, 0.18. a / b over the textured rows: 1.25, 3, 3, median s = 3,
     so s b = 0.12, 0.03, 0.54: rows 2 and 3 already agree, row 0's area becomes 0.05^(1 - w) 0.12^w, both its
     stretches scaled by (0.12 / 0.05)^(w / 2) = 2.4^(w / 2)."""
-    texture = np.full((16, 16), 0.5)
-    texture[:, :8] = np.random.default_rng(0).random((16, 8))
-    corners = np.array([[(1, 1), (5, 1), (1, 5)], [(11, 11), (13, 11), (11, 13)], [(2, 10), (3, 10), (2, 11)],
-                        [(0.5, 0.5), (8.5, 0.5), (0.5, 8.5)]], float)
-    params = np.array([[0.3, 0.1, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 0.1, 0.3, 0.0], [0.1, 0.6, 0.9, 0.4]])
+    texture, uv, params, result = _hand_placed_targets()
     signal = np.array([[0.0, 0.2, 0.2, 0.0], [0.0, 0.5, 0.5, 0.0], [0.0, 0.1, 0.1, 0.0], [0.0, 0.3, 0.6, 0.7]])
-    result = dataclasses.replace(_result_with_weights(np.zeros(4), np.zeros(4), epsilon=0.01), params=params)
-    uv = corners / 16
 
     def targets(weight, signal=signal):
         return result.fit_targets(uv, texture, min_texels=0.0, signal_targets=signal, signal_weight=weight)
