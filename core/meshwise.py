@@ -72,6 +72,8 @@ __all__ = [
     "barrier",
     "local_step",
     "fit_energy",
+    "orient_charts",
+    "flipped_triangles",
 ]
 
 _GRAD = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
@@ -332,13 +334,42 @@ class _Problem:
         return np.swapaxes(X, 1, 2) @ self.gradient
 
 
-def _prepare(topology, uv, S_bar, *, degenerate_tol, barrier_threshold):
-    m = uv.shape[0]
-    edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=2)  # columns e1, e2
+def _edges_and_validity(uv, degenerate_tol):
+    """Edge matrices (columns e1, e2), their determinants, and which triangles are not degenerate."""
+    edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=2)
     det = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
     longest2 = np.max(np.stack([_frob2(uv[:, 1] - uv[:, 0]), _frob2(uv[:, 2] - uv[:, 1]),
                                 _frob2(uv[:, 0] - uv[:, 2])]), axis=0)
-    valid = np.abs(det) > degenerate_tol * longest2
+    return edges, det, np.abs(det) > degenerate_tol * longest2
+
+
+def flipped_triangles(uv_in, uv_new, *, degenerate_tol=1e-10):
+    """Which triangles of ``uv_new`` lost the orientation they have in ``uv_in`` (``det J <= 0``).
+
+    Parameters
+    ----------
+    uv_in, uv_new : (m, 3, 2) array_like of float
+        UVs per face corner before and after.
+    degenerate_tol : float, optional
+        As in :func:`solve_meshwise`: degenerate input triangles are never counted.
+
+    Returns
+    -------
+    (m,) bool ndarray
+        Summed, the ``flipped`` count of :class:`MeshwiseResult` for its own ``uv``.
+    """
+    uv_in = np.asarray(uv_in, dtype=np.float64)
+    uv_new = np.asarray(uv_new, dtype=np.float64)
+    if uv_in.ndim != 3 or uv_in.shape[1:] != (3, 2) or uv_new.shape != uv_in.shape:
+        raise ValueError(f"uv_in and uv_new must both have shape (m, 3, 2), got {uv_in.shape} and {uv_new.shape}")
+    _, det_in, valid = _edges_and_validity(uv_in, degenerate_tol)
+    _, det_new, _ = _edges_and_validity(uv_new, degenerate_tol)
+    return valid & ~(det_new * np.sign(det_in) > 0)
+
+
+def _prepare(topology, uv, S_bar, *, degenerate_tol, barrier_threshold):
+    m = uv.shape[0]
+    edges, det, valid = _edges_and_validity(uv, degenerate_tol)
     if not valid.any():
         raise ValueError("every input UV triangle is degenerate (zero area); nothing to fit")
     inverse = np.zeros_like(edges)
@@ -854,3 +885,111 @@ def solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", 
                                     newton_iterations=newton_iterations, degenerate_tol=degenerate_tol,
                                     topology=topology)
     return run_generator(generator, progress)
+
+
+def orient_charts(uv_in, uv_new, face_chart, alpha, w_R, *, texel_scale=(1.0, 1.0), samples=90):
+    """Turn every chart of ``uv_new`` rigidly to the angle that best meets its triangles' rotation targets.
+
+    Minimizes Eq. 16's rotation term, ``sum_i a_i w_R,i min_k |R_i - R(k pi/2) R(alpha_i)|^2`` over one
+    rotation per chart, where ``R_i`` is the rotation factor of triangle i's Jacobian from ``uv_in`` to
+    ``uv_new`` and ``a_i`` its input-UV area. A rigid turn leaves every stretch ``S_i``, every determinant and
+    every other term of Eq. 19 as it was.
+
+    Parameters
+    ----------
+    uv_in : (m, 3, 2) array_like of float
+        Input UVs per face corner (the frame of ``alpha``).
+    uv_new : (m, 3, 2) array_like of float
+        The same charts after the mesh-wise fit.
+    face_chart : (m,) array_like of int
+        Chart of every face, numbered from 0.
+    alpha : (m,) array_like of float
+        Target rotation angle of every triangle (the triangle-wise optimum's first parameter).
+    w_R : (m,) array_like of float
+        Non-negative rotation weights (Eq. 17).
+    texel_scale : (2,) array_like of float, optional
+        Texels per UV unit along u and v of the input texture: the angles are measured on the texel grid, as
+        the triangle-wise stage measured ``alpha``.
+    samples : int, optional
+        Angles tried per quarter turn before the local refinement.
+
+    Returns
+    -------
+    uv : (m, 3, 2) float64 ndarray
+        ``uv_new`` with every chart turned about its corners' mean.
+    angles : (n_charts,) float64 ndarray
+        The turn of every chart, in ``[0, pi/2)`` (with the packer's quarter turns that is every angle).
+
+    Notes
+    -----
+    With the 90-degree symmetry the energy of a chart turned by ``theta`` is
+    ``4 sum_i a_i w_R,i (1 - cos((theta + d_i) mod* pi/2))`` with ``d_i = angle(R_i) - alpha_i`` and ``mod*``
+    the residue in ``[-pi/4, pi/4)``. It is tried at ``samples`` angles, then refined from the best by
+    alternating the quarter turns ``k_i`` and the closed-form ``theta = -arg sum_i a_i w_R,i
+    exp(j (d_i - k_i pi/2))``, both of which only lower it. A chart keeps its angle unless turning it lowers
+    the energy. Fitting the rotation terms inside Eq. 19 instead bends charts whose triangles want different
+    rotations, and the bending pulls the triangles off their stretch targets (see
+    :meth:`~.trianglewise.TrianglewiseResult.fit_weights`); a rigid turn cannot.
+
+    References
+    ----------
+    Sun et al. 2022, Eq. 16 (rotation targets with 90-degree symmetry), Eq. 17 (``w_R``), Eq. 19.
+    """
+    uv_in = np.asarray(uv_in, dtype=np.float64)
+    uv_new = np.asarray(uv_new, dtype=np.float64)
+    face_chart = np.asarray(face_chart)
+    alpha = np.asarray(alpha, dtype=np.float64)
+    m = uv_in.shape[0]
+    if uv_in.shape != (m, 3, 2) or uv_new.shape != uv_in.shape:
+        raise ValueError(f"uv_in and uv_new must both have shape (m, 3, 2), got {uv_in.shape} and {uv_new.shape}")
+    if (face_chart.shape != (m,) or alpha.shape != (m,) or not np.issubdtype(face_chart.dtype, np.integer)
+            or (m and face_chart.min() < 0)):
+        raise ValueError(f"face_chart and alpha must have shape ({m},), face_chart integers numbered from 0")
+    if not np.all(np.isfinite(alpha)):
+        raise ValueError("alpha must be finite")
+    w_R = _parse_weights(w_R, m, "w_R")
+    scale = np.asarray(texel_scale, dtype=np.float64)
+    if scale.shape != (2,) or not np.all(np.isfinite(scale) & (scale > 0)):
+        raise ValueError(f"texel_scale must be two positive numbers, got {texel_scale}")
+    if int(samples) < 1:
+        raise ValueError(f"samples must be at least 1, got {samples}")
+    n_charts = int(face_chart.max()) + 1 if m else 0
+    quarter = np.pi / 2
+
+    def edges(corners):
+        return np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]], axis=-1) * scale[:, None]
+
+    old, new = edges(uv_in), edges(uv_new)
+    old_det, new_det = np.linalg.det(old), np.linalg.det(new)
+    weight = w_R * 0.5 * np.abs(old_det)
+    weight[(old_det == 0) | (new_det * old_det <= 0)] = 0.0
+    fitted = weight > 0
+    d = np.zeros(m)
+    J = new[fitted] @ np.linalg.inv(old[fitted])
+    d[fitted] = _angle_of(J) - alpha[fitted]
+
+    def energies(theta):
+        residue = np.mod(theta[face_chart] + d + quarter / 2, quarter) - quarter / 2
+        return np.bincount(face_chart, weights=weight * (1 - np.cos(residue)), minlength=n_charts)
+
+    grid = np.arange(int(samples)) * (quarter / int(samples))
+    table = np.stack([energies(np.full(n_charts, t)) for t in grid])
+    theta = grid[np.argmin(table, axis=0)]
+    best = table.min(axis=0)
+    for _ in range(8):
+        k = np.round((theta[face_chart] + d) / quarter)
+        phasor = np.bincount(face_chart, weights=weight * np.cos(d - k * quarter), minlength=n_charts) + 1j * \
+            np.bincount(face_chart, weights=weight * np.sin(d - k * quarter), minlength=n_charts)
+        candidate = np.mod(-np.angle(phasor), quarter)
+        energy = energies(candidate)
+        better = energy < best
+        theta[better], best[better] = candidate[better], energy[better]
+    theta[~(best < energies(np.zeros(n_charts)))] = 0.0
+
+    uv = uv_new.copy()
+    for chart in np.flatnonzero(theta):
+        faces = face_chart == chart
+        texels = uv_new[faces] * scale
+        centre = texels.reshape(-1, 2).mean(axis=0)
+        uv[faces] = ((texels - centre) @ rotation(theta[chart]).T + centre) / scale
+    return uv, theta

@@ -20,7 +20,7 @@ from .charts import signed_uv_areas
 from .cost import uv_area
 
 __all__ = ["OverlapCount", "overlapping_pairs", "overlap_areas", "count_overlaps", "triangles_overlap",
-           "restore_folded_charts", "FOLD_TOLERANCE"]
+           "shared_area_fractions", "restore_folded_charts", "FOLD_TOLERANCE"]
 
 #: A chart counts as folded when the UV area its triangles share grows by more than this fraction of its area.
 FOLD_TOLERANCE = 1e-3
@@ -330,8 +330,22 @@ def count_overlaps(uv, face_chart=None):
                         between_charts=int((~same).sum()), triangles=int(np.unique(pairs).size))
 
 
-def _within_chart_shared_fraction(uv, face_chart, n_charts):
-    """Per chart: UV area shared by pairs of its own triangles, as a fraction of the chart's UV area."""
+def shared_area_fractions(uv, face_chart, n_charts):
+    """Per chart: the UV area shared by pairs of its own triangles, as a fraction of the chart's UV area.
+
+    Parameters
+    ----------
+    uv : (m, 3, 2) array_like of float
+    face_chart : (m,) ndarray of int
+        Chart of every face, numbered from 0.
+    n_charts : int
+
+    Returns
+    -------
+    (n_charts,) float64 ndarray
+        0 for a chart that does not overlap itself (or has no UV area); overlaps between charts are left out.
+    """
+    uv = _validate_uv(uv)
     pairs = overlapping_pairs(uv)
     pairs = pairs[face_chart[pairs[:, 0]] == face_chart[pairs[:, 1]]]
     shared = np.bincount(face_chart[pairs[:, 0]], overlap_areas(uv, pairs), minlength=n_charts)
@@ -390,8 +404,8 @@ def restore_folded_charts(uv_in, uv_new, face_chart, *, tolerance=FOLD_TOLERANCE
     if not (np.isfinite(tolerance) and tolerance >= 0):
         raise ValueError(f"tolerance must be a non-negative number, got {tolerance}")
     n_charts = int(face_chart.max()) + 1 if m else 0
-    growth = (_within_chart_shared_fraction(uv_new, face_chart, n_charts)
-              - _within_chart_shared_fraction(uv_in, face_chart, n_charts))
+    growth = (shared_area_fractions(uv_new, face_chart, n_charts)
+              - shared_area_fractions(uv_in, face_chart, n_charts))
     restored = np.flatnonzero(growth > tolerance)
     uv = uv_new.copy()
     for chart in restored:

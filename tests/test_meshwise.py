@@ -11,7 +11,8 @@ from perceptual_uv.core.mesh import read_obj
 from perceptual_uv.core.progress import run_generator
 from perceptual_uv.core.meshwise import (_local_update_kernel, _local_update_reference,
                                          _Objective, _prepare, barrier, fit_energy, iter_solve_meshwise,
-                                         local_step, solve_meshwise)
+                                         flipped_triangles, local_step, orient_charts,
+                                         solve_meshwise)
 
 HERE = pathlib.Path(__file__).resolve().parent
 SPOT = HERE / "data" / "spot" / "spot_triangulated.obj"
@@ -279,6 +280,91 @@ def test_bad_targets_raise():
     with pytest.raises(ValueError, match="rotations"):
         solve_meshwise(SQUARE_F, SQUARE_UV, (np.tile(2 * np.eye(2), (2, 1, 1)), np.tile(np.eye(2), (2, 1, 1))),
                        weights="identity")
+
+
+# --- chart orientation -----------------------------------------------------------------------------------
+
+def _texel_jacobians(uv_in, uv_new, scale=(1.0, 1.0)):
+    scale = np.asarray(scale)[:, None]
+    old = np.stack([uv_in[:, 1] - uv_in[:, 0], uv_in[:, 2] - uv_in[:, 0]], axis=-1) * scale
+    new = np.stack([uv_new[:, 1] - uv_new[:, 0], uv_new[:, 2] - uv_new[:, 0]], axis=-1) * scale
+    return new @ np.linalg.inv(old)
+
+
+def test_orient_charts_turns_rigidly_turned_charts_back_to_their_targets():
+    # Chart 0 (the square) was turned by 0.3 and halved, chart 1 (a lone triangle) turned by 1.0; both want
+    # their input orientation (alpha = 0), so they turn by -0.3 and -1.0 modulo a quarter turn.
+    uv_in = np.concatenate([SQUARE_UV, [[[2.0, 0], [3, 0], [2, 2]]]])
+    uv_new = uv_in.copy()
+    uv_new[:2] = 0.5 * uv_in[:2] @ rotation(0.3).T
+    uv_new[2] = uv_in[2] @ rotation(1.0).T + 5
+    uv, angles = orient_charts(uv_in, uv_new, np.array([0, 0, 1]), np.zeros(3), np.ones(3))
+    np.testing.assert_allclose(angles, [np.pi / 2 - 0.3, np.pi / 2 - 1.0], atol=1e-12)
+    J = _texel_jacobians(uv_in, uv)
+    np.testing.assert_allclose(J, np.stack([0.5 * rotation(np.pi / 2)] * 2 + [rotation(np.pi / 2)]), atol=1e-12)
+    # Turned about the corners' mean, so the chart stays where it was.
+    np.testing.assert_allclose(uv[2].mean(axis=0), uv_new[2].mean(axis=0), atol=1e-12)
+
+
+def test_orient_charts_weighs_the_triangles_targets():
+    # Both halves of the square keep the input map; their targets are 0 and 0.2 with weights 1 and 3 (equal
+    # areas). Within a quarter turn the energy is 1 - cos(theta) + 3 (1 - cos(theta - 0.2)), least at
+    # tan(theta) = 3 sin(0.2) / (1 + 3 cos(0.2)): theta = 0.15013.
+    uv, angles = orient_charts(SQUARE_UV, SQUARE_UV, np.zeros(2, dtype=int), np.array([0.0, 0.2]), np.array([1.0, 3.0]))
+    expected = np.arctan2(3 * np.sin(0.2), 1 + 3 * np.cos(0.2))
+    assert abs(expected - 0.15013) < 1e-5
+    np.testing.assert_allclose(angles, [expected], atol=1e-10)
+    np.testing.assert_allclose(_texel_jacobians(SQUARE_UV, uv), rotation(np.full(2, expected)), atol=1e-12)
+    # A quarter turn more in a target changes nothing (Eq. 16's symmetry).
+    _, turned = orient_charts(SQUARE_UV, SQUARE_UV, np.zeros(2, dtype=int), np.array([np.pi / 2, 0.2 - np.pi]),
+                              np.array([1.0, 3.0]))
+    np.testing.assert_allclose(turned, angles, atol=1e-10)
+
+
+def test_orient_charts_measures_angles_on_the_texel_grid():
+    # A 2:1 texture: the chart was turned by 0.4 in texels, which is a shear in UV units.
+    scale = np.array([2.0, 1.0])
+    uv_new = (SQUARE_UV * scale) @ rotation(0.4).T / scale
+    uv, angles = orient_charts(SQUARE_UV, uv_new, np.zeros(2, dtype=int), np.zeros(2), np.ones(2), texel_scale=scale)
+    np.testing.assert_allclose(angles, [np.pi / 2 - 0.4], atol=1e-12)
+    np.testing.assert_allclose(_texel_jacobians(SQUARE_UV, uv, scale), rotation(np.full(2, np.pi / 2)),
+                               atol=1e-12)
+
+
+def test_orient_charts_leaves_charts_without_rotation_weight_alone():
+    uv_new = 0.5 * SQUARE_UV @ rotation(0.3).T
+    uv, angles = orient_charts(SQUARE_UV, uv_new, np.zeros(2, dtype=int), np.array([0.1, 0.7]), np.zeros(2))
+    np.testing.assert_array_equal(angles, [0.0])
+    np.testing.assert_array_equal(uv, uv_new)
+
+
+def test_flipped_triangles_compare_orientations_and_skip_degenerate_ones():
+    flat = [[[0.0, 0], [1, 0], [2, 0]]]  # collinear: degenerate in the input, never counted
+    uv_in = np.concatenate([SQUARE_UV, flat, SQUARE_UV[:1, ::-1]])  # the last one is clockwise
+    uv_new = uv_in.copy()
+    uv_new[1] = uv_in[1] * [-1, 1]  # mirrored: flipped
+    uv_new[2] = [[0, 0], [1, 0], [0, 1]]
+    uv_new[3] = 0.5 * uv_in[3]  # still clockwise, like its input
+    np.testing.assert_array_equal(flipped_triangles(uv_in, uv_new), [False, True, False, False])
+    uv_new[0, 1] = uv_new[0, 0]  # collapsed to zero area: counted
+    assert flipped_triangles(uv_in, uv_new)[0]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(uv_new=np.zeros((2, 3))), "shape"),
+    (dict(face_chart=np.array([0, -1])), "numbered from 0"),
+    (dict(face_chart=np.zeros(2)), "numbered from 0"),
+    (dict(alpha=np.array([0.0, np.nan])), "finite"),
+    (dict(w_R=np.array([1.0, -1.0])), "non-negative"),
+    (dict(texel_scale=(1.0, 0.0)), "texel_scale"),
+    (dict(samples=0), "samples"),
+])
+def test_orient_charts_rejects_bad_input(kwargs, message):
+    args = dict(uv_in=SQUARE_UV, uv_new=SQUARE_UV, face_chart=np.zeros(2, dtype=int), alpha=np.zeros(2),
+                w_R=np.ones(2))
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=message):
+        orient_charts(**args)
 
 
 # --- real model (issue 4, must show 5) -------------------------------------------------------------------

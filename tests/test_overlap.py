@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core.overlap import (count_overlaps, overlapping_pairs, overlapping_pairs_reference,
-                                       overlap_areas, restore_folded_charts, triangles_overlap)
+                                       overlap_areas, restore_folded_charts, shared_area_fractions,
+                                       triangles_overlap)
 
 UNIT = [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]
 
@@ -125,6 +126,15 @@ def test_overlap_areas_by_hand():
     np.testing.assert_allclose(overlap_areas(star, [[0, 1]]), [2 / 3 * triangle_area], rtol=1e-12)
     with pytest.raises(ValueError, match="outside"):
         overlap_areas(uv, [[0, 4]])
+
+
+def test_shared_area_fractions_count_each_charts_own_overlaps_only():
+    right = np.array([[0, 0], [1, 0], [0, 1]], dtype=float)
+    # chart 0: the right triangle and its copy shifted by half, sharing 0.125 of a chart area of 1;
+    # chart 1: a lone triangle lying on chart 0 (an overlap between charts, left out); chart 2: no UV area.
+    uv = np.array([right, right + [0.5, 0], right, np.zeros((3, 2))])
+    np.testing.assert_allclose(shared_area_fractions(uv, np.array([0, 0, 1, 2]), 3), [0.125, 0.0, 0.0],
+                               atol=1e-15)
 
 
 @pytest.mark.parametrize("shift, folded", [(0.02, False), (0.1, True)])
