@@ -93,7 +93,8 @@ class UVMaps:
             start = time.perf_counter()  # the triangle-wise time is reported on its own
             kw = {"ours_common": {"formulation": "common"}, "ours_identity": {"weights": "identity"},
                   "ours_rotation": {"rotation_scale": 1.0}}.get(method, {})
-            t = baselines.perceptual_uv(objects, source_uv=source, triangles=triangles, name=name, **kw)
+            t = baselines.perceptual_uv(objects, source_uv=source, triangles=triangles, name=name,
+                                        workers=self.workers, **kw)
             if method == "ours":
                 self.times["mesh"] = t["mesh"]
         self.times[method] = time.perf_counter() - start

@@ -17,11 +17,12 @@ import time
 import bpy
 import numpy as np
 
+from ..core.chartfit import fit_charts
 from ..core.loss import texture_luma
 from ..core.meshwise import solve_meshwise
 from ..core.overlap import restore_folded_charts
 from ..core.ssp import solve_ssp, ssp_targets
-from ..core.trianglewise import ROTATION_WEIGHT_SCALE, TrianglewiseResult, optimize_triangles
+from ..core.trianglewise import TrianglewiseResult, losses_at, optimize_triangles
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
@@ -167,11 +168,13 @@ def _triangle_cache_key(V, F, uv, luma, **settings):
 
 
 def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual",
-                  rotation_scale=ROTATION_WEIGHT_SCALE):
-    """Our mesh-wise stage on triangle-wise results ``triangles``, with the Fig. 17 ablations, packed.
+                  rotation_scale=None, workers=1):
+    """Our mesh-wise stage on triangle-wise results ``triangles``, or one of the Fig. 17 ablations, packed.
 
-    As in the pipeline, charts the fit folds over themselves keep their input layout
-    (:func:`core.overlap.restore_folded_charts`).
+    By default as in the pipeline (:func:`core.chartfit.fit_charts`): fits with and without Eq. 16's rotation
+    terms, every chart turned to its best angle and keeping the fit whose triangles' loss E is lower. An
+    ablation (``weights``, ``formulation`` or ``rotation_scale`` given) is one fit of Eq. 19 whose folded charts
+    keep their input layout (:func:`core.overlap.restore_folded_charts`).
 
     Parameters
     ----------
@@ -180,17 +183,26 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     weights : {"perceptual", "identity"}
     formulation : {"perceptual", "common"}
     rotation_scale : float, optional
-        Of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights`; 1 fits Eq. 16's rotation targets.
+        Of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights` for one fit; 1 fits Eq. 16's rotation
+        targets, 0 leaves them out.
+    workers : int, optional
+        Processes measuring E for the default (``core.trianglewise.losses_at``; 0: one per core).
     """
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
     V, F, uv = mesh_arrays(objects, source_uv)
     texture = _texture(objects)
-    w_R, w_S = triangles.fit_weights(rotation_scale=rotation_scale)
+    luma = texture_luma(texture)
     signal, _, _ = ssp_targets(V, F, uv, texture)
-    params = triangles.fit_targets(uv, texture_luma(texture), signal_targets=signal)
-    result = solve_meshwise(F, uv, params, w_R, w_S, weights=weights, formulation=formulation)
-    uv_fit, _ = restore_folded_charts(uv, result.uv, result.topology.face_chart)
+    params = triangles.fit_targets(uv, luma, signal_targets=signal)
+    if (weights, formulation, rotation_scale) == ("perceptual", "perceptual", None):
+        uv_fit = fit_charts(F, uv, params, *triangles.fit_weights(),
+                            measure=lambda new_uv: losses_at(V, F, uv, luma, new_uv, workers=workers),
+                            texel_scale=texture.shape[1::-1]).uv
+    else:
+        w_R, w_S = triangles.fit_weights(rotation_scale=0.0 if rotation_scale is None else rotation_scale)
+        result = solve_meshwise(F, uv, params, w_R, w_S, weights=weights, formulation=formulation)
+        uv_fit, _ = restore_folded_charts(uv, result.uv, result.topology.face_chart)
     t_mesh = time.perf_counter() - start
     _write(objects, name, uv_fit)
     _pack(objects, name)

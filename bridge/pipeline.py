@@ -309,9 +309,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     Sun et al. 2022: Sec. 4.1 (triangle-wise), Sec. 4.2 and App. B (mesh-wise), Sec. 5.1 (packing with
     translations and 90-degree rotations, resolution from the target cost, Eq. 20-21).
     """
+    from ..core.chartfit import iter_fit_charts
     from ..core.loss import texture_luma
-    from ..core.meshwise import iter_solve_meshwise
-    from ..core.overlap import restore_folded_charts
     from ..core.ssp import ssp_targets
     from ..core.trianglewise import iter_optimize_triangles, losses_at
     from .bake import bake_base_color
@@ -362,9 +361,17 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
         params, w_R, w_S = validated.targets(triangles.fit_targets(uv_in, luma, signal_targets=signal),
                                              *triangles.fit_weights())
-        stage = iter_solve_meshwise(F, uv_in, params, w_R, w_S)
-        meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit", clock)
-        uv_fit, restored = restore_folded_charts(uv_in, meshwise.uv, meshwise.topology.face_chart)
+
+        def measure(uv_new):
+            losses = np.zeros(m)  # skipped triangles show 0 in the overlay; the report counts optimized ones only
+            losses[faces] = losses_at(V, F, uv_in, luma, uv_new, screen_pixels=settings.screen_pixels,
+                                      max_screen_pixels=settings.max_screen_pixels, faces=faces,
+                                      workers=settings.workers)
+            return losses
+
+        stage = iter_fit_charts(F, uv_in, params, w_R, w_S, measure=measure, texel_scale=(width, height))
+        meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit, with and without rotation targets", clock)
+        uv_fit, restored, losses = meshwise.uv, meshwise.restored, meshwise.losses
         if restored.size:
             notes.append(f"{restored.size} UV island(s) folded over themselves in the mesh-wise fit (it is locally "
                          "injective only) and keep their input layout, scaled to their new size")
@@ -393,10 +400,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         created.images.append(new_image)
         times["bake"] = time.perf_counter() - clock
 
-        yield Progress("loss", 0, 1, "Measuring the loss per triangle")
-        losses = np.zeros(m)  # skipped triangles show 0 in the overlay; the report counts optimized ones only
-        losses[faces] = losses_at(V, F, uv_in, luma, uv_fit, screen_pixels=settings.screen_pixels,
-                                  max_screen_pixels=settings.max_screen_pixels, faces=faces)
+        yield Progress("loss", 0, 1, "Writing the loss per triangle")
         for obj, rows in zip(objects, per_object):
             _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
 

@@ -98,7 +98,6 @@ TOLERANCE = None
 STRETCH_WEIGHT_FLOOR = 1e-6
 MIN_TEXELS = 2.0
 SIGNAL_WEIGHT = 0.5
-ROTATION_WEIGHT_SCALE = 0.0
 _QUARTER = 0.5 * math.pi
 _FORMULATIONS = ("constrained", "barrier")
 _BACKENDS = ("fast", "skopt")
@@ -506,7 +505,7 @@ class TrianglewiseResult:
             _blend_areas(params, signal_targets[self.faces], textured & (area > 0), signal_weight)
         return params
 
-    def fit_weights(self, *, floor=STRETCH_WEIGHT_FLOOR, rotation_scale=ROTATION_WEIGHT_SCALE):
+    def fit_weights(self, *, floor=STRETCH_WEIGHT_FLOOR, rotation_scale=1.0):
         """Weights for the mesh-wise fit (Eq. 19): ``rotation_scale * w_R`` and ``w_S + floor``.
 
         Parameters
@@ -515,8 +514,8 @@ class TrianglewiseResult:
             Added to every stretch weight; the default is a tenth of the mesh-wise stage's ``w_rs = 1e-5``
             (0 gives Eq. 17's variances unchanged).
         rotation_scale : float, optional
-            Multiplies Eq. 17's rotation weight. 1 is Eq. 16 as written; the default 0 leaves each triangle's
-            rotation to the conforming map and fits the stretch targets alone.
+            Multiplies Eq. 17's rotation weight: 1 is Eq. 16 as written, 0 leaves each triangle's rotation to
+            the conforming map and fits the stretch targets alone.
 
         Returns
         -------
@@ -537,10 +536,12 @@ class TrianglewiseResult:
         0.87e-3 to 1.41e-3; at epsilon 0.002, a floor of ``(epsilon / 10)^2 = 4e-8`` gives 3.6e-3 and this
         one 5.3e-4.
 
-        The rotation targets cost more than they give: a chart cannot take each triangle's own best rotation,
-        so the weighted rotation terms bend it, and the bending stretches triangles away from their targets.
-        Measured with the triangle-wise results of the default settings (seed 0, spot seed 1), q_r at
-        c_r = 0.3 (512 px, 20 views) with ``rotation_scale`` 1 -> 0: bob 2.57e-3 -> 7.5e-4, Avocado 3.17e-4 ->
+        In one fit, the rotation targets mostly cost more than they give: a chart cannot take each triangle's
+        own best rotation, so the weighted rotation terms bend it, and the bending stretches triangles away
+        from their targets. That is why the pipeline fits with and without them and lets every chart keep the
+        better fit (:func:`.chartfit.fit_charts`). Measured with one fit and the triangle-wise results of the
+        default settings (seed 0, spot seed 1), q_r at c_r = 0.3 (512 px, 20 views) with ``rotation_scale``
+        1 -> 0: bob 2.57e-3 -> 7.5e-4, Avocado 3.17e-4 ->
         2.17e-4, BoomBox 4.32e-3 -> 3.25e-3, WaterBottle 3.34e-3 -> 2.67e-3, spot 6.9e-4 -> 5.7e-4, sofa
         1.36e-2 -> 1.27e-2, tea_set 1.49e-3 -> 1.45e-3; CesiumMan (1.84e-3 -> 2.38e-3) and the nearly flat
         YcbBanana (6.9e-5 -> 8.7e-5) get worse. Scales 0.1 and 0.01 were not better than 0 on any of bob,

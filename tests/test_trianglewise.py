@@ -336,11 +336,10 @@ def test_fit_weights_floor_the_stretch_weight_at_a_tenth_of_w_rs_whatever_the_bo
     for epsilon in (0.002, 0.02):
         result = _result_with_weights([0.0, 2e-3], [0.0, 1e-3], epsilon=epsilon)
         w_R, w_S = result.fit_weights()
-        np.testing.assert_array_equal(w_R, [0.0, 0.0])  # rotation targets are left out by default
+        np.testing.assert_array_equal(w_R, [0.0, 2e-3])  # Eq. 16 as written: Eq. 17's rotation weight, no floor
         np.testing.assert_allclose(w_S, [1e-6, 1e-3 + 1e-6], rtol=1e-12)  # 0.1 * w_rs = 1e-6
         np.testing.assert_array_equal(result.fit_weights(floor=0.0)[1], [0.0, 1e-3])
-        # Eq. 16 as written: Eq. 17's rotation weight, with no floor
-        np.testing.assert_array_equal(result.fit_weights(rotation_scale=1.0)[0], [0.0, 2e-3])
+        np.testing.assert_array_equal(result.fit_weights(rotation_scale=0.0)[0], [0.0, 0.0])
         np.testing.assert_array_equal(result.fit_weights(rotation_scale=0.5)[0], [0.0, 1e-3])
     with pytest.raises(ValueError, match="floor"):
         result.fit_weights(floor=-1.0)
@@ -409,7 +408,7 @@ def test_fit_targets_draw_textured_areas_towards_signal_stretch_geometrically():
 
 def test_rotation_targets_that_disagree_bend_a_chart_only_when_weighted():
     """Two triangles of one chart want half their size (lambda = 0.5) and rotations pi/8 apart. Without rotation
-    targets (the default) a similarity meets both stretch targets exactly: singular values 0.5 and 0.5. With
+    targets a similarity meets both stretch targets exactly: singular values 0.5 and 0.5. With
     Eq. 16's rotation weights no conforming map can turn the two by different angles without shearing them."""
     from perceptual_uv.core.meshwise import solve_meshwise
 
