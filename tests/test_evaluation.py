@@ -177,9 +177,29 @@ def test_degenerate_triangles_are_excluded_and_counted():
     collapsed[1] = [[0, 0], [1, 1 + 2e-8], [2, 2]]
     energy, details = symmetric_dirichlet(V, F, collapsed, normalize=False, full=True)
     assert energy == pytest.approx(3.0) and details["degenerate_uv"] == 1
-    # ... and counted when the tolerance is below it.
-    energy, details = symmetric_dirichlet(V, F, collapsed, normalize=False, full=True, degenerate_tol=1e-9)
+    # ... and counted when the tolerance is below it, for exact coordinates (float32 could not hold it).
+    energy, details = symmetric_dirichlet(V, F, collapsed, normalize=False, full=True, degenerate_tol=1e-9,
+                                          uv_rounding=0.0)
     assert energy > 1e6 and details["degenerate_uv"] == 0
+
+
+def test_a_uv_triangle_flat_but_for_float32_rounding_is_degenerate():
+    V, F, uv = _tilted_square()
+    V, F = np.vstack([V, V[:1]]), np.vstack([F, [[0, 1, 2]]])  # a third face, surface area 3
+    # Its UVs: three points 1e-3 apart on a line at 0.3 rad, near (100, 100), rounded to float32. The rounding
+    # (up to 2^-24 * 100 = 6e-6 per coordinate) lifts it to a relative height of about 1e-3, far above
+    # 1e-6, but its |det| stays within 4 * 2^-24 * 100 * 2e-3 = 4.8e-8.
+    line = 100.0 + np.outer([0.0, 1e-3, 2e-3], [np.cos(0.3), np.sin(0.3)])
+    flat = line.astype(np.float32).astype(np.float64)
+    det = np.cross(flat[1] - flat[0], flat[2] - flat[0])
+    assert abs(det) > 1e-6 * 4e-6 and abs(det) <= 4 * 2.0 ** -24 * 100.01 * 2e-3
+    energy, details = symmetric_dirichlet(V, F, np.concatenate([uv, [flat]]), normalize=False, full=True)
+    assert details["degenerate_uv"] == 1 and energy == pytest.approx(6.0, rel=1e-12)
+    # A real triangle of the same size there (height 1e-3) still counts.
+    real = line.copy()
+    real[2] = line[0] + [-1e-3 * np.sin(0.3), 1e-3 * np.cos(0.3)]
+    _, details = symmetric_dirichlet(V, F, np.concatenate([uv, [real]]), normalize=False, full=True)
+    assert details["degenerate_uv"] == 0 and details["per_face"][2] > 0
 
 
 def test_dirichlet_validation():
