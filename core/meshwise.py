@@ -368,7 +368,6 @@ def flipped_triangles(uv_in, uv_new, *, degenerate_tol=1e-10):
 
 
 def _prepare(topology, uv, S_bar, *, degenerate_tol, barrier_threshold):
-    m = uv.shape[0]
     edges, det, valid = _edges_and_validity(uv, degenerate_tol)
     if not valid.any():
         raise ValueError("every input UV triangle is degenerate (zero area); nothing to fit")
