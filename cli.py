@@ -4,9 +4,11 @@
     python -m perceptual_uv optimize IN --out OUT.blend ...            (bpy module in the venv)
     blender -b FILE --python <extension dir>/cli.py -- optimize IN ...  (arguments after ``--``)
 
-Exit codes: 0 success, 2 bad input (one line on stderr, no traceback), 1 an internal failure.
+Exit codes: 0 success, 2 bad input (one line on stderr, no traceback), 1 an internal failure (one line on stderr
+naming the file the traceback was written to), 130 cancelled.
 """
 import argparse
+import os
 import pathlib
 import sys
 
@@ -157,6 +159,17 @@ def _was_interrupted(error):
     return False
 
 
+def _write_traceback(error):
+    """Write ``error``'s traceback to a new file in the temporary folder; returns its path."""
+    import tempfile
+    import traceback
+
+    handle, path = tempfile.mkstemp(prefix=f"{PROG}-internal-error-", suffix=".txt")
+    with os.fdopen(handle, "w") as out:
+        out.write("".join(traceback.format_exception(error)))
+    return path
+
+
 def main(argv=None):
     """Run the CLI; returns the process exit code."""
     import signal
@@ -176,19 +189,19 @@ def main(argv=None):
     except NotImplementedError as error:
         print(f"{PROG}: {error}", file=sys.stderr)
         return 1
-    except RuntimeError as error:
-        if type(error).__name__ != "WorkerDiedError":
-            raise
-        print(f"{PROG}: error: {error}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print(f"{PROG}: cancelled", file=sys.stderr)
         return 130
-    except SystemError as error:
-        if not _was_interrupted(error):
-            raise
-        print(f"{PROG}: cancelled", file=sys.stderr)
-        return 130
+    except Exception as error:
+        if _was_interrupted(error):
+            print(f"{PROG}: cancelled", file=sys.stderr)
+            return 130
+        if type(error).__name__ == "WorkerDiedError":
+            print(f"{PROG}: error: {error}", file=sys.stderr)
+            return 1
+        print(f"{PROG}: internal error: {type(error).__name__}: {error} (traceback written to "
+              f"{_write_traceback(error)})", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -93,6 +93,21 @@ def _source_image(objects):
     return image
 
 
+def _above_bound(uv, luma, target_losses, fit_losses, epsilon):
+    """Fractions of the textured triangles (:func:`core.loss.textured_triangles`) whose E exceeds epsilon: at the
+    targets the mesh-wise fit was given (after the texel floor and the signal-stretch blend) and after the fit.
+    Both are measured, so they show how far the floor and the blend move targets past the bound."""
+    from ..core.loss import textured_triangles
+
+    textured = textured_triangles(uv, luma)
+    count = int(np.count_nonzero(textured))
+    if count == 0:
+        return {"textured_triangles": 0, "targets": 0.0, "fit": 0.0}
+    return {"textured_triangles": count,
+            "targets": float(np.mean(~(target_losses[textured] <= epsilon))),
+            "fit": float(np.mean(~(fit_losses[textured] <= epsilon)))}
+
+
 def _notes_for_objects(objects):
     """What the user should know about the objects themselves (modifiers: the base mesh is optimized)."""
     notes = []
@@ -312,7 +327,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     from ..core.chartfit import iter_fit_charts
     from ..core.loss import texture_luma
     from ..core.ssp import ssp_targets
-    from ..core.trianglewise import iter_optimize_triangles, losses_at
+    from ..core.trianglewise import iter_optimize_triangles, losses_at, losses_of
     from .bake import bake_base_color
     from .mesh_io import write_uv_layer
     from .pack import pack_uv_layer
@@ -354,13 +369,21 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                         workers=settings.workers, seed=settings.seed, faces=faces)
         triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock)
         times["triangle"] = time.perf_counter() - clock
+        unevaluated = int(np.count_nonzero(triangles.unevaluated))
+        if unevaluated:
+            notes.append(f"the loss of {unevaluated} triangle(s) could not be evaluated (NaN or infinite); they keep "
+                         "their input shape and size")
 
         clock = time.perf_counter()
         yield Progress("mesh", 0, 1, "Measuring the texture's signal stretch")
         signal, _, _ = ssp_targets(V, F, uv_in, texture)
         # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
-        params, w_R, w_S = validated.targets(triangles.fit_targets(uv_in, luma, signal_targets=signal),
-                                             *triangles.fit_weights())
+        targets = triangles.fit_targets(uv_in, luma, signal_targets=signal)
+        params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
+        yield Progress("mesh", 0, 1, "Measuring the loss of the fit's targets")
+        target_losses = losses_of(V, F, uv_in, luma, targets, screen_pixels=settings.screen_pixels,
+                                  max_screen_pixels=settings.max_screen_pixels, faces=faces,
+                                  workers=settings.workers)
 
         def measure(uv_new):
             losses = np.zeros(m)  # skipped triangles show 0 in the overlay; the report counts optimized ones only
@@ -426,6 +449,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),
             "restored_charts": int(restored.size),
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
+            "textured_above_bound": _above_bound(uv_in[faces], luma, target_losses, losses[faces],
+                                                 settings.epsilon),
+            "unevaluated_triangles": unevaluated,
             "optimized_triangles": int(len(faces)),
             "skipped_triangles": int(m - len(faces)),
             "uv_map": uv_name,

@@ -170,16 +170,33 @@ def _solve_ordered(ids, weights, target, count, ridge):
                     env[base + ib] += wa * weights[p, b]
     for i in range(count):
         env[offset[i + 1] - 1] += ridge
-    _envelope_cholesky_solve(env, offset, first, rhs)
+    _envelope_cholesky_solve(env, offset, first, rhs, ridge)
     return rhs
 
 
+@njit(inline="always")
+def _floored_pivot(pivot, pivot_floor):
+    """Numba: a Cholesky pivot of ``A + ridge I`` (``A`` positive semi-definite), raised to ``pivot_floor``.
+
+    Every exact pivot of ``A + ridge I`` is at least ``ridge`` (a Schur complement of a positive semi-definite
+    matrix plus ``ridge I``). Rounding can still take one below it, to zero or below when ``A`` is rank
+    deficient (pixels of zero-UV-area faces all reading one point make rank-1 blocks) and its entries are
+    large next to the ridge: the rounding error of a pivot grows with the row's length times its diagonal.
+    A pivot at or below zero would make the square root NaN, and in a ``fastmath`` kernel numba's division
+    check then raises ``ZeroDivisionError`` on the NaN divisor. Raising such a pivot to the ridge factorizes
+    a positive definite matrix within rounding of ``A + ridge I``; the comparison is written so that a NaN
+    pivot is replaced too.
+    """
+    return pivot if pivot >= pivot_floor else pivot_floor
+
+
 @njit(fastmath=True)
-def _envelope_cholesky_solve(env, offset, first, rhs):
+def _envelope_cholesky_solve(env, offset, first, rhs, pivot_floor):
     """Numba: factorize the envelope matrix in place (``L L^T``) and overwrite ``rhs`` with the solution.
 
     Row ``i`` holds columns ``first[i]..i`` at ``env[offset[i]:offset[i + 1]]``. ``fastmath`` lets the dot
-    products vectorize (their summation order changes at round-off level only).
+    products vectorize (their summation order changes at round-off level only). Every pivot is at least
+    ``pivot_floor`` (:func:`_floored_pivot`).
     """
     count = rhs.shape[0]
     # Row-oriented envelope Cholesky: L[i, j] lives at env[offset[i] + j - first[i]].
@@ -196,7 +213,7 @@ def _envelope_cholesky_solve(env, offset, first, rhs):
         s = 0.0
         for k in range(fi, i):
             s += env[bi + k] * env[bi + k]
-        env[bi + i] = np.sqrt(env[bi + i] - s)
+        env[bi + i] = np.sqrt(_floored_pivot(env[bi + i] - s, pivot_floor))
     # Forward substitution L y = rhs, then back substitution L^T x = y (column sweep).
     for i in range(count):
         fi = first[i]
@@ -215,17 +232,18 @@ def _envelope_cholesky_solve(env, offset, first, rhs):
 
 
 @njit(fastmath=True)
-def _band_cholesky_solve(band, rhs):
+def _band_cholesky_solve(band, rhs, pivot_floor):
     """Numba: solve with a symmetric band matrix, ``band[j, d] = A[j + d, j]`` (lower band, column-major).
 
     Right-looking: after scaling column ``j`` its rank-1 update touches fixed-length contiguous rows, which
     vectorize better than the envelope's variable-length dot products when the envelope is nearly a full band.
-    ``band`` is overwritten with ``L``; ``rhs`` with the solution.
+    ``band`` is overwritten with ``L``; ``rhs`` with the solution. Every pivot is at least ``pivot_floor``
+    (:func:`_floored_pivot`).
     """
     count, width = band.shape
     b = width - 1
     for j in range(count):
-        d = np.sqrt(band[j, 0])
+        d = np.sqrt(_floored_pivot(band[j, 0], pivot_floor))
         band[j, 0] = d
         m = min(b, count - 1 - j)
         inv = 1.0 / d

@@ -9,7 +9,8 @@ with Eq. 17's ``w_R``; folded charts get their input layout back (:func:`.overla
 every chart of both fits is turned rigidly to the angle that best meets its rotation targets
 (:func:`.meshwise.orient_charts`, which changes no stretch); the loss E of Sec. 4.1 is measured for every
 triangle of both; and each chart keeps the fit whose triangles' losses sum lower, unless that fit folds the
-chart over itself more than the other does.
+chart over itself more than the other does. The fits and the turns measure Jacobians in texels of the input
+texture, the frame of the triangle-wise targets, so a texture that is not square keeps the shape of its texels.
 """
 from dataclasses import dataclass
 
@@ -71,7 +72,7 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     candidates = []
     for index, rotation_weights in enumerate((np.zeros_like(np.asarray(w_R, dtype=np.float64)), w_R)):
         stage = iter_solve_meshwise(F, uv, targets, rotation_weights, w_S, topology=topology,
-                                    max_iterations=max_iterations)
+                                    max_iterations=max_iterations, texel_scale=texel_scale)
         while True:
             try:
                 done, _ = next(stage)
@@ -98,7 +99,8 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                           turned_restored[rotation_fit[turned_restored]]).astype(np.int64)
     return ChartFit(uv=fitted, losses=np.where(take, turned_losses, plain_losses), rotation_fit=rotation_fit,
                     angles=np.where(rotation_fit, turned_angles, plain_angles), restored=restored,
-                    flipped=int(flipped_triangles(uv, fitted).sum()), topology=topology, fits=(plain, turned))
+                    flipped=int(flipped_triangles(uv, fitted, texel_scale=texel_scale).sum()), topology=topology,
+                    fits=(plain, turned))
 
 
 def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100, progress=None):
@@ -110,7 +112,8 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
     uv : (m, 3, 2) array_like of float
         Input UVs per face corner.
     targets : (m, 4) array_like of float
-        ``(alpha, lambda1, lambda2, beta)`` per face, as :func:`.meshwise.solve_meshwise` takes them.
+        ``(alpha, lambda1, lambda2, beta)`` per face, as :func:`.meshwise.solve_meshwise` takes them: Jacobians
+        between texels of the input texture (``texel_scale``).
     w_R, w_S : (m,) array_like of float
         Eq. 17's weights (``w_S`` as the fit uses it, e.g. with its floor). ``w_R`` weighs the rotation terms
         of the second fit and the chart turns of both.
@@ -118,7 +121,10 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
         ``measure(uv_new) -> (m,)`` loss of every triangle under the new UVs (e.g.
         :func:`.trianglewise.losses_at`; 0 for triangles it need not judge). Called once per fit.
     texel_scale : (2,) array_like of float, optional
-        Texels per UV unit of the input texture along u and v (:func:`.meshwise.orient_charts`).
+        Texels per UV unit of the input texture along u and v, ``(w, h)``: both fits
+        (:func:`.meshwise.solve_meshwise`) and the chart turns (:func:`.meshwise.orient_charts`) meet the
+        targets on the texel grid, so a ``w != h`` texture keeps its texels' shape and turns charts by texel
+        angles. ``(1, 1)``: UV units.
     max_iterations : int, optional
         Local-global iterations per fit at most.
     progress : callable, optional

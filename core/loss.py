@@ -596,7 +596,7 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
             band[min(t2, t3), abs(t2 - t3)] += acc[c, 9]
         for i in range(n_tex):
             band[i, 0] += ridge
-        _band_cholesky_solve(band, rhs)
+        _band_cholesky_solve(band, rhs, ridge)
     else:
         offset = np.empty(n_tex + 1, np.int64)
         offset[0] = 0
@@ -617,7 +617,7 @@ def _rebake_render_cells(points, reference, box, a00, a01, a10, a11, cx, cy, w, 
             _add_off_diagonal(env, offset, first, t2, t3, acc[c, 9])
         for i in range(n_tex):
             env[offset[i + 1] - 1] += ridge
-        _envelope_cholesky_solve(env, offset, first, rhs)
+        _envelope_cholesky_solve(env, offset, first, rhs, ridge)
     cell_value = np.empty((n_cells, 4))
     for c in range(n_cells):
         for k in range(4):

@@ -1,9 +1,9 @@
 """Mesh-wise stage: one conforming, flip-free UV map that fits per-triangle optimal Jacobians (Sec. 4.2, App. B).
 
 The unknown is the map phi from the input UVs to new UVs, piecewise linear on the input triangles, so its
-Jacobian ``J_i = grad phi_i`` maps input-UV edge vectors of triangle i to its new-UV edge vectors. The
-triangle-wise stage gives the optimum ``R_bar_i S_bar_i`` of each triangle up to a quarter turn. We minimize
-Eq. 19 with a flip barrier,
+Jacobian ``J_i = grad phi_i`` maps the edge vectors of input triangle i to those of new triangle i, both
+measured in texels of the input texture (see "Texel frame" below). The triangle-wise stage gives the optimum
+``R_bar_i S_bar_i`` of each triangle up to a quarter turn. We minimize Eq. 19 with a flip barrier,
 
     sum_i a_i [ w_R |R_i - R(k_i pi/2) R_bar_i|^2 + w_S |S_i - S_bar_i|^2
                 + w_rs |J_i - R_i S_i|^2 + w_b B(det J_i; s_i) ],
@@ -13,6 +13,16 @@ step minimizes Eq. 27 over the chart-vertex UVs by damped Newton.
 
 Decisions (the paper leaves them open):
 
+* Texel frame: the triangle-wise targets are Jacobians between texel coordinates ``(u w, v h)`` of a ``w x h``
+  texture (:mod:`.loss`), and Eq. 16's quarter-turn symmetry holds on the texel grid. So the whole solve
+  (targets, quarter turns, area weights, barrier, degenerate test) runs on the UVs scaled by ``texel_scale =
+  (w, h)``, and the result is scaled back to UV units. A Jacobian ``A`` met in UV units is ``diag(w, h) A
+  diag(w, h)^-1`` in texels, so on a ``w != h`` texture a solve in UV units would meet every rotation and
+  every stretch not aligned with the axes in the wrong frame: on a 2:1 texture the conformal target
+  ``0.5 R(pi/6)`` would get singular values 0.72 and 0.35 in texels. Eq. 19 does not see a uniform scale of
+  the frame (the area weights are normalized, the degenerate test is relative, J and its determinant are
+  unchanged), so only ``w / h`` matters: the frame is ``(sqrt(w / h), sqrt(h / w))``, which keeps UV areas,
+  and on a square texture it is ``(1, 1)`` exactly, the solve in UV units.
 * Area weights ``a_i``: the input-UV area of triangle i divided by the mean input-UV area, so the sum is the
   integral of the per-point energy over the input UV domain (small triangles do not dominate) and the
   paper's balance ``w_rs = 1e-5`` keeps its meaning (a_i averages to 1). The local step does not depend on a_i.
@@ -54,6 +64,7 @@ Decisions (the paper leaves them open):
   numpy reference (``_local_update_reference``, ``_Objective.gradient_and_blocks_reference``) that the tests
   compare against.
 """
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,7 +98,7 @@ class MeshwiseResult:
     Attributes
     ----------
     uv : (m, 3, 2) float64 ndarray
-        New UV per face corner; corners sharing a chart vertex share their UV.
+        New UV per face corner, in the input's UV units; corners sharing a chart vertex share their UV.
     vertex_uv : (k, 2) float64 ndarray
         New UV of every chart vertex of ``topology``.
     topology : UVTopology
@@ -98,10 +109,10 @@ class MeshwiseResult:
         Objective (Eq. 19 plus ``w_b`` times the barrier) at the start and after every iteration;
         non-increasing.
     fit_energy : float
-        Eq. 16 summed with the area weights at the final map, with R, S the polar factors of its Jacobians
-        (for ``formulation="common"``: Eq. 15 summed).
+        Eq. 16 summed with the area weights at the final map, with R, S the polar factors of its Jacobians in
+        the texel frame (for ``formulation="common"``: Eq. 15 summed).
     quarter_turns : (m,) int64 ndarray
-        The chosen k_i.
+        The chosen k_i (quarter turns on the texel grid).
     flipped : int
         Non-degenerate triangles whose orientation differs from the input's.
     degenerate : int
@@ -334,6 +345,26 @@ class _Problem:
         return np.swapaxes(X, 1, 2) @ self.gradient
 
 
+def _texel_frame(texel_scale):
+    """Scale of u and v that makes UV steps proportional to texel steps, with unit determinant.
+
+    Parameters
+    ----------
+    texel_scale : (2,) array_like of float
+        Texels per UV unit along u and v, ``(w, h)``.
+
+    Returns
+    -------
+    (2,) float64 ndarray
+        ``(sqrt(w / h), sqrt(h / w))``; exactly ``(1, 1)`` when ``w == h``.
+    """
+    scale = np.asarray(texel_scale, dtype=np.float64)
+    if scale.shape != (2,) or not np.all(np.isfinite(scale) & (scale > 0)):
+        raise ValueError(f"texel_scale must be two positive numbers, got {texel_scale}")
+    root = np.sqrt(scale[0] / scale[1])
+    return np.array([root, 1.0 / root])
+
+
 def _edges_and_validity(uv, degenerate_tol):
     """Edge matrices (columns e1, e2), their determinants, and which triangles are not degenerate."""
     edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=2)
@@ -343,7 +374,7 @@ def _edges_and_validity(uv, degenerate_tol):
     return edges, det, np.abs(det) > degenerate_tol * longest2
 
 
-def flipped_triangles(uv_in, uv_new, *, degenerate_tol=1e-10):
+def flipped_triangles(uv_in, uv_new, *, degenerate_tol=1e-10, texel_scale=(1.0, 1.0)):
     """Which triangles of ``uv_new`` lost the orientation they have in ``uv_in`` (``det J <= 0``).
 
     Parameters
@@ -352,6 +383,8 @@ def flipped_triangles(uv_in, uv_new, *, degenerate_tol=1e-10):
         UVs per face corner before and after.
     degenerate_tol : float, optional
         As in :func:`solve_meshwise`: degenerate input triangles are never counted.
+    texel_scale : (2,) array_like of float, optional
+        As in :func:`solve_meshwise`: the degenerate test is made in texels of the input texture.
 
     Returns
     -------
@@ -362,8 +395,9 @@ def flipped_triangles(uv_in, uv_new, *, degenerate_tol=1e-10):
     uv_new = np.asarray(uv_new, dtype=np.float64)
     if uv_in.ndim != 3 or uv_in.shape[1:] != (3, 2) or uv_new.shape != uv_in.shape:
         raise ValueError(f"uv_in and uv_new must both have shape (m, 3, 2), got {uv_in.shape} and {uv_new.shape}")
-    _, det_in, valid = _edges_and_validity(uv_in, degenerate_tol)
-    _, det_new, _ = _edges_and_validity(uv_new, degenerate_tol)
+    frame = _texel_frame(texel_scale)
+    _, det_in, valid = _edges_and_validity(uv_in * frame, degenerate_tol)
+    _, det_new, _ = _edges_and_validity(uv_new * frame, degenerate_tol)
     return valid & ~(det_new * np.sign(det_in) > 0)
 
 
@@ -697,7 +731,7 @@ def _carry_loose_vertices(x, problem, topology, J):
 
 def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", formulation="perceptual",
                         w_rs=1e-5, barrier_weight=1.0, barrier_threshold=0.5, max_iterations=100, tol=1e-7,
-                        newton_iterations=1, degenerate_tol=1e-10, topology=None):
+                        newton_iterations=1, degenerate_tol=1e-10, topology=None, texel_scale=(1.0, 1.0)):
     """Generator form of :func:`solve_meshwise`: yields ``(done, total)`` after every iteration.
 
     The result comes back as the generator's return value, so a pipeline generator writes
@@ -727,17 +761,21 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
         raise ValueError("max_iterations and newton_iterations must be at least 1")
     if not tol >= 0:
         raise ValueError(f"tol must be non-negative, got {tol}")
+    frame = _texel_frame(texel_scale)
     if topology is None:
         topology = uv_topology(F, uv)
     elif topology.corner_vertex.shape != (m, 3):
         raise ValueError("topology does not belong to these faces")
+    # The solve runs in the texel frame (module docstring); the result is mapped back to UV units at the end.
+    texel_topology = dataclasses.replace(topology, vertex_uv=topology.vertex_uv * frame)
 
-    problem = _prepare(topology, uv, S_bar, degenerate_tol=degenerate_tol, barrier_threshold=barrier_threshold)
+    problem = _prepare(texel_topology, uv * frame, S_bar, degenerate_tol=degenerate_tol,
+                       barrier_threshold=barrier_threshold)
     valid = problem.valid
     common = formulation == "common"
     quad_weight = 1.0 if common else float(w_rs)
     w_b = quad_weight * float(barrier_weight)
-    x = topology.vertex_uv.copy()
+    x = texel_topology.vertex_uv.copy()
     J = problem.jacobians(x)
     R = np.tile(np.eye(2), (m, 1, 1))
     S = R.copy()
@@ -803,7 +841,7 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
             converged = True
             break
 
-    x = _carry_loose_vertices(x, problem, topology, J)
+    x = _carry_loose_vertices(x, problem, texel_topology, J) / frame
     final_fit, k_final = fit_energy(J, R_bar, S_bar, w_R, w_S, formulation=formulation)
     det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
     return MeshwiseResult(
@@ -823,7 +861,8 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
 
 def solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", formulation="perceptual",
                    w_rs=1e-5, barrier_weight=1.0, barrier_threshold=0.5, max_iterations=100, tol=1e-7,
-                   newton_iterations=1, degenerate_tol=1e-10, topology=None, progress=None):
+                   newton_iterations=1, degenerate_tol=1e-10, topology=None, texel_scale=(1.0, 1.0),
+                   progress=None):
     """Fit one flip-free UV map with the input's charts to per-triangle optimal Jacobians (Eq. 19).
 
     Parameters
@@ -834,7 +873,8 @@ def solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", 
         Input UVs per face corner; the map phi starts as the identity on them.
     targets : (m, 4) array_like, or pair of (m, 2, 2) array_like
         Per-triangle optimum, either as ``(alpha, lambda1, lambda2, beta)`` rows (Eq. 13-14) or as
-        ``(R_bar, S_bar)``; ``R_bar S_bar`` maps input-UV edge vectors to new ones.
+        ``(R_bar, S_bar)``; ``R_bar S_bar`` maps input edge vectors to new ones, both in texels
+        ``(u w, v h)`` of ``texel_scale``.
     w_R, w_S : (m,) array_like of float, optional
         Non-negative rotation and stretch weights of Eq. 17 (needed for ``weights="perceptual"``).
     weights : {"perceptual", "identity"}
@@ -859,19 +899,24 @@ def solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", 
         An input triangle with ``|2 area| <= degenerate_tol * (longest edge)^2`` is degenerate (see Notes).
     topology : UVTopology, optional
         Precomputed :func:`~perceptual_uv.core.charts.uv_topology` of ``(F, uv)``.
+    texel_scale : (2,) array_like of float, optional
+        Texels per UV unit along u and v of the input texture, ``(w, h)``, the frame in which the targets,
+        their quarter turns and Eq. 19 are measured (only ``w / h`` matters). The default ``(1, 1)`` is UV
+        units, right for a square texture and for targets stated in UV units (e.g. :func:`.ssp.ssp_targets`).
     progress : callable, optional
         Called as ``progress(done, total)`` after every iteration.
 
     Returns
     -------
     MeshwiseResult
+        New UVs in the input's UV units.
 
     Notes
     -----
     Decisions not fixed by the paper are listed in this module's docstring: area weights by input-UV area,
     exact block minimization in the local step (monotone objective), SKPS13 barrier with per-triangle
     threshold, orientation kept per triangle (mirrored charts need no special case), degenerate input
-    triangles weighted 0, one fixed vertex per chart as the translation gauge.
+    triangles weighted 0, one fixed vertex per chart as the translation gauge, the solve in the texel frame.
 
     References
     ----------
@@ -882,7 +927,7 @@ def solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", 
                                     w_rs=w_rs, barrier_weight=barrier_weight,
                                     barrier_threshold=barrier_threshold, max_iterations=max_iterations, tol=tol,
                                     newton_iterations=newton_iterations, degenerate_tol=degenerate_tol,
-                                    topology=topology)
+                                    topology=topology, texel_scale=texel_scale)
     return run_generator(generator, progress)
 
 

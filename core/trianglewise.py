@@ -85,11 +85,12 @@ from .loss import prepare_triangles, texture_luma, textured_triangles
 from .one_ring import one_ring_faces
 from .progress import run_generator
 
-__all__ = ["WorkerDiedError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS", "SIGNAL_WEIGHT", "TriangleOptimum",
-           "TrianglewiseResult", "finite_barrier", "sensitivity_weights", "optimize_triangle",
-           "iter_optimize_triangles", "optimize_triangles", "losses_at"]
+__all__ = ["WorkerDiedError", "LossNotEvaluableError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS",
+           "SIGNAL_WEIGHT", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
+           "optimize_triangle", "iter_optimize_triangles", "optimize_triangles", "losses_at", "losses_of"]
 
 LAMBDA_MIN = 0.1
+_IDENTITY = np.array([0.0, 1.0, 1.0, 0.0])
 MAX_SCREEN_PIXELS = 256
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
@@ -308,6 +309,8 @@ def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMB
 
     def loss(params):
         values = np.asarray(problem.evaluate(params), dtype=np.float64)
+        if not np.all(np.isfinite(values)):
+            raise LossNotEvaluableError(f"face {problem.face}: E is not finite at some deformations of the box")
         seen_params.append(np.array(params, dtype=np.float64))
         seen_loss.append(values)
         return values
@@ -371,6 +374,10 @@ class TrianglewiseResult:
         Faces skipped because the texture their view reads is constant.
     epsilon, lambda_min : float
     formulation, backend : str
+    unevaluated : (k,) bool ndarray, optional
+        Faces whose loss could not be evaluated (:class:`LossNotEvaluableError`); their ``params`` are the
+        identity, their loss NaN and their weights 0, so the mesh-wise stage keeps their input shape and size.
+        All False by default.
 
     See Also
     --------
@@ -390,6 +397,11 @@ class TrianglewiseResult:
     lambda_min: float
     formulation: str
     backend: str
+    unevaluated: np.ndarray = None
+
+    def __post_init__(self):
+        if self.unevaluated is None:
+            object.__setattr__(self, "unevaluated", np.zeros(len(self.faces), dtype=bool))
 
     def fit_targets(self, uv, luma, *, min_texels=MIN_TEXELS, signal_targets=None, signal_weight=SIGNAL_WEIGHT):
         """Targets for the mesh-wise fit: :attr:`params` with no stretch of a textured triangle below the texel
@@ -417,7 +429,8 @@ class TrianglewiseResult:
         -------
         (k, 4) float64 ndarray
             ``(alpha, lambda1, lambda2, beta)`` per face of :attr:`faces`; only the lambdas change, and only on
-            triangles whose own texels vary (:func:`.loss.textured_triangles`) and that have UV area.
+            triangles whose own texels vary (:func:`.loss.textured_triangles`), that have UV area and whose
+            loss could be evaluated (:attr:`unevaluated` faces keep the identity).
 
         Notes
         -----
@@ -496,7 +509,7 @@ class TrianglewiseResult:
             return params
         uv = uv[self.faces]
         area = texel_areas(uv, luma.shape[1], luma.shape[0])
-        textured = textured_triangles(uv, luma)
+        textured = textured_triangles(uv, luma) & ~self.unevaluated
         if min_texels > 0:
             with np.errstate(divide="ignore"):
                 floor = np.minimum(1.0, np.sqrt(min_texels / area))
@@ -599,11 +612,17 @@ def _optimize_chunk(state, faces):
     options = state["options"]
     rows = []
     for face, problem in zip(faces, _prepared(state, faces)):
-        found = optimize_triangle(problem, epsilon=options["epsilon"], evaluations=options["evaluations"],
-                                  lambda_min=options["lambda_min"], formulation=options["formulation"],
-                                  backend=options["backend"], seed=_face_seed(options["seed"], face))
+        try:
+            found = optimize_triangle(problem, epsilon=options["epsilon"], evaluations=options["evaluations"],
+                                      lambda_min=options["lambda_min"], formulation=options["formulation"],
+                                      backend=options["backend"], seed=_face_seed(options["seed"], face))
+        except (ArithmeticError, np.linalg.LinAlgError):
+            # One triangle whose loss cannot be evaluated must not end the run: it keeps its input shape and
+            # is counted (TrianglewiseResult.unevaluated).
+            rows.append((_IDENTITY.copy(), math.nan, 0.0, 0.0, 0, False, False, True))
+            continue
         rows.append((found.params, found.loss, found.w_R, found.w_S, found.evaluations, found.feasible,
-                     bool(problem.is_constant)))
+                     bool(problem.is_constant), False))
     return np.asarray(faces), rows
 
 
@@ -612,7 +631,10 @@ def _losses_chunk(state, faces):
     params = state["options"]["params"]
     out = np.empty(len(faces))
     for row, (face, problem) in enumerate(zip(faces, _prepared(state, faces))):
-        out[row] = problem.evaluate(params[face])[0] if np.all(np.isfinite(params[face])) else np.inf
+        out[row] = np.inf
+        if np.all(np.isfinite(params[face])):
+            with contextlib.suppress(ArithmeticError, np.linalg.LinAlgError):
+                out[row] = problem.evaluate(params[face])[0]
     return np.asarray(faces), out
 
 
@@ -701,6 +723,10 @@ def _spawn_environment():
 
 class WorkerDiedError(RuntimeError):
     """A worker process of the triangle-wise stage ended without delivering its results."""
+
+
+class LossNotEvaluableError(ArithmeticError):
+    """The perceptual loss E of a triangle came out NaN or infinite for a deformation of the box."""
 
 
 def _make_pool(workers, state):
@@ -797,18 +823,18 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
     params = np.empty((total, 4))
     loss, w_R, w_S = np.empty(total), np.empty(total), np.empty(total)
     used = np.zeros(total, np.int64)
-    feasible, constant = np.zeros(total, bool), np.zeros(total, bool)
+    feasible, constant, unevaluated = np.zeros(total, bool), np.zeros(total, bool), np.zeros(total, bool)
     done = 0
     yield done, total
     with contextlib.closing(_run_chunks("optimize", state, faces, int(workers), int(chunk_size))) as chunks:
         for chunk, rows in chunks:
             for face, row in zip(chunk, rows):
                 i = row_of[int(face)]
-                params[i], loss[i], w_R[i], w_S[i], used[i], feasible[i], constant[i] = row
+                params[i], loss[i], w_R[i], w_S[i], used[i], feasible[i], constant[i], unevaluated[i] = row
             done += len(chunk)
             yield done, total
     return TrianglewiseResult(faces, params, loss, w_R, w_S, used, feasible, constant, float(epsilon),
-                              float(lambda_min), formulation, backend)
+                              float(lambda_min), formulation, backend, unevaluated)
 
 
 def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
@@ -916,10 +942,42 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
     J = np.zeros_like(old_edges)
     J[valid] = new_edges[valid] @ np.linalg.inv(old_edges[valid])
     valid &= np.linalg.det(J) > 0
-    params = np.full((len(F), 1, 4), np.inf)
+    params = np.full((len(F), 4), np.inf)
     if valid.any():
-        params[valid, 0] = _params_from_jacobians(J[valid])
-    state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, {"params": params})
+        params[valid] = _params_from_jacobians(J[valid])
+    return _losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size)
+
+
+def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
+              workers=1, chunk_size=64):
+    """Triangle-wise loss E of given deformations, e.g. the mesh-wise stage's targets.
+
+    Parameters
+    ----------
+    V, F, uv, luma
+        As in :func:`optimize_triangles`.
+    params : (k, 4) array_like
+        ``(alpha, lambda1, lambda2, beta)`` per face of ``faces`` (Eq. 13-14).
+    screen_pixels, max_screen_pixels, faces, workers, chunk_size
+        As in :func:`losses_at`.
+
+    Returns
+    -------
+    (k,) ndarray
+        E per face; ``inf`` where a row of ``params`` is not finite or E cannot be evaluated.
+    """
+    V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
+    params = np.asarray(params, dtype=np.float64)
+    if params.shape != (len(faces), 4):
+        raise ValueError(f"params must have shape {(len(faces), 4)}, a row per face, got {params.shape}")
+    every = np.full((len(F), 4), np.inf)
+    every[faces] = params
+    return _losses(V, F, uv, luma, every, faces, screen_pixels, max_screen_pixels, workers, chunk_size)
+
+
+def _losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size):
+    """E of ``params`` (m, 4), a row per face of the mesh, at ``faces``, in worker processes."""
+    state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, {"params": params[:, None, :]})
     out = np.empty(len(faces))
     row_of = {int(face): row for row, face in enumerate(faces)}
     with contextlib.closing(_run_chunks("losses", state, faces, int(workers), int(chunk_size))) as chunks:

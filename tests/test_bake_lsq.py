@@ -106,12 +106,12 @@ def test_band_and_envelope_cholesky_match_dense_solve():
     for d in range(b + 1):
         band[: n - d, d] = np.diagonal(M, d)
     x = rhs.copy()
-    _band_cholesky_solve(band, x)
+    _band_cholesky_solve(band, x, 1e-12)
     np.testing.assert_allclose(x, expected, atol=1e-12)
     # The same matrix in envelope storage (rows from first[i] to i).
     first = np.maximum(np.arange(n) - b, 0)
     offset = np.concatenate([[0], np.cumsum(np.arange(n) - first + 1)])
     env = np.concatenate([M[i, first[i]:i + 1] for i in range(n)])
     x = rhs.copy()
-    _envelope_cholesky_solve(env, offset, first, x)
+    _envelope_cholesky_solve(env, offset, first, x, 1e-12)
     np.testing.assert_allclose(x, expected, atol=1e-12)

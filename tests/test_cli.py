@@ -92,9 +92,26 @@ def test_an_interrupt_that_numba_wraps_in_a_system_error_still_cancels(monkeypat
     assert main(["optimize", str(SPOT), "--out", "unused.blend"]) == 130
     assert capsys.readouterr().err.strip().endswith("cancelled")
 
-    def broken(args):
-        raise SystemError("something else")
 
-    monkeypatch.setattr(cli, "_run", broken)
-    with pytest.raises(SystemError, match="something else"):
-        main(["optimize", str(SPOT), "--out", "unused.blend"])
+def test_an_internal_failure_prints_one_line_naming_the_traceback_file_and_exits_1(monkeypatch, capsys):
+    """Issue 22: the CLI never prints a traceback; an internal failure (here a SystemError that no interrupt
+    caused, and a ZeroDivisionError from a kernel) is one line and exit 1, the traceback in a file."""
+    from perceptual_uv import cli
+
+    for error in (SystemError("something else"), ZeroDivisionError("division by zero")):
+        def broken(args, error=error):
+            raise error
+
+        monkeypatch.setattr(cli, "_run", broken)
+        assert main(["optimize", str(SPOT), "--out", "unused.blend"]) == 1
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1
+        message = f"perceptual_uv: internal error: {type(error).__name__}: {error} (traceback written to "
+        assert lines[0].startswith(message) and lines[0].endswith(")")
+        path = pathlib.Path(lines[0][len(message):-1])
+        try:
+            text = path.read_text()
+            assert text.startswith("Traceback (most recent call last):")
+            assert "in broken" in text and text.rstrip().endswith(f"{type(error).__name__}: {error}")
+        finally:
+            path.unlink()

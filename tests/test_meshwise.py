@@ -385,6 +385,24 @@ def _chart_error_up_to_translation_and_quarter_turn(topology, new_uv, expected_u
 
 
 @pytest.mark.parametrize("formulation", ["perceptual", "common"])
+def test_a_square_texture_solves_in_uv_units_bit_for_bit(spot, formulation):
+    """``texel_scale=(w, w)`` is the solve in UV units (``texel_scale`` left out, as before it existed), bit for
+    bit: the texel frame of a square texture is ``(1, 1)`` exactly, whatever ``w``."""
+    F, uv = spot
+    params, w_R, w_S = random_box_targets(len(F), 5)
+    options = dict(formulation=formulation, max_iterations=8)
+    reference = solve_meshwise(F, uv, params, w_R, w_S, **options)
+    for w in (1024, 0.1):
+        result = solve_meshwise(F, uv, params, w_R, w_S, texel_scale=(w, w), **options)
+        np.testing.assert_array_equal(result.uv, reference.uv)
+        np.testing.assert_array_equal(result.energy_history, reference.energy_history)
+        np.testing.assert_array_equal(result.quarter_turns, reference.quarter_turns)
+        assert result.fit_energy == reference.fit_energy
+    np.testing.assert_array_equal(flipped_triangles(uv, reference.uv, texel_scale=(512, 512)),
+                                  flipped_triangles(uv, reference.uv))
+
+
+@pytest.mark.parametrize("formulation", ["perceptual", "common"])
 def test_recovers_a_real_map_scaled_and_rotated_per_chart(spot, formulation):
     F, uv = spot
     topology = uv_topology(F, uv)
