@@ -5,7 +5,9 @@ For triangle ``i`` and a deformation ``(alpha, lambda1, lambda2, beta)`` (Eq. 13
 1. camera ``C_i`` of App. A (:mod:`.camera`), screen ``n x n`` (64 by default);
 2. reference render (Eq. 1, 8-9): the one-ring of ``i`` (triangles sharing a vertex, welded by position) and
    the further faces connected to it that reach into the window (:func:`.one_ring.window_faces`), with
-   their input UVs and the input texture at its own resolution, luma only (:mod:`.raster`);
+   their input UVs and the input texture at its own resolution, luma only (:mod:`.raster`).
+   ``view_faces="one_ring"`` draws App. A's set instead, the triangle and its one-ring only
+   (:func:`.one_ring.one_ring_faces`): the paper as written, for comparison;
 3. deformed UVs: every drawn triangle's texel-space UVs mapped by ``x -> A (x - c) + c`` with
    ``A = R(alpha) S(lambda1, lambda2, beta)`` (:func:`.deformation.jacobian`), i.e. ``phi~`` of Eq. 6 applied
    to every drawn triangle. The paper sets the offset ``t_i = 0``; the offset does not change the area and
@@ -51,8 +53,13 @@ from .gmsd import (GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, _pool
 from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
 from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
 
-__all__ = ["TriangleProblem", "TriangleBatch", "texture_luma", "textured_triangles", "triangle_problem",
-           "prepare_triangles", "render_reference"]
+__all__ = ["VIEW_FACES", "TriangleProblem", "TriangleBatch", "texture_luma", "textured_triangles",
+           "triangle_problem", "prepare_triangles", "render_reference"]
+
+#: Which faces a triangle's view draws: ``"window"`` (default) the one-ring and the faces connected to it that
+#: reach into the window (:func:`.one_ring.window_faces`); ``"one_ring"`` the triangle and the faces sharing a
+#: vertex with it (:func:`.one_ring.one_ring_faces`), as Sec. 4.1 (after Eq. 6) and App. A describe.
+VIEW_FACES = ("window", "one_ring")
 
 
 
@@ -845,13 +852,33 @@ class TriangleBatch:
         return self[i].evaluate(params)
 
 
+def _check_view_faces(view_faces):
+    """``view_faces`` as given, or ValueError when it is not one of :data:`VIEW_FACES`."""
+    if not isinstance(view_faces, str) or view_faces not in VIEW_FACES:
+        raise ValueError(f"view_faces must be one of {VIEW_FACES}, got {view_faces!r}")
+    return view_faces
+
+
+def _one_ring_draw(ring_offsets, ring, face):
+    """The triangle then the rest of its one-ring (ascending): the faces App. A's view draws.
+
+    Returns
+    -------
+    (k,) ndarray of int64
+        ``face`` first, as :func:`.one_ring.window_faces` orders its result.
+    """
+    neighbours = ring[ring_offsets[face]:ring_offsets[face + 1]]
+    return np.concatenate([np.array([face], np.int64), neighbours[neighbours != face]]).astype(np.int64)
+
+
 def _centre_texel(uv_face, w, h):
     """Texel centre nearest to the UV barycentre of one triangle, in texel units."""
     bary = uv_face.mean(axis=0) * np.array([w, h], dtype=np.float64)
     return np.floor(bary) + 0.5
 
 
-def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE):
+def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE,
+                      view_faces="window"):
     """Build the loss problems of many triangles of one mesh.
 
     Parameters
@@ -872,6 +899,15 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
         when preparing chunks).
     ridge : float, optional
         Tikhonov weight of the re-bake (:mod:`.bake_lsq`).
+    view_faces : {"window", "one_ring"}, optional
+        Faces drawn into each view (:data:`VIEW_FACES`). ``"window"`` (default): the one-ring plus the faces
+        connected to it that reach into the window within half a window side of its plane
+        (:func:`.one_ring.window_faces`, at most ``WINDOW_FACE_LIMIT``). ``"one_ring"``: the triangle and
+        the faces sharing a vertex with it (welded by position), all of them whatever their distance to the
+        plane, as App. A draws them; one-ring faces outside the window simply cover no pixel. Either way
+        E is GMSD over the covered pixels only (:func:`.gmsd.covered_gmsd`, a project decision, see
+        docs/DECISIONS.md), not over the whole screen: with ``"one_ring"`` a sliver's view is mostly
+        uncovered, and those pixels do not count.
 
     Returns
     -------
@@ -879,7 +915,7 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
 
     References
     ----------
-    Sun et al. 2022, Sec. 4.1.1, App. A.
+    Sun et al. 2022, Sec. 4.1.1 (text after Eq. 6), App. A.
     """
     V, F, uv = _check_inputs(V, F, uv)
     luma = texture_luma(luma)
@@ -887,6 +923,7 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
         raise ValueError(f"screen_pixels must be an even integer >= 2, got {screen_pixels}")
     if not ridge > 0:
         raise ValueError(f"ridge must be positive, got {ridge}")
+    one_ring_only = _check_view_faces(view_faces) == "one_ring"
     n = int(screen_pixels)
     h, w = luma.shape
     faces = np.arange(len(F), dtype=np.int64) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)
@@ -910,7 +947,9 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
     for row, f in enumerate(faces):
         centres[row] = _centre_texel(uv[f], w, h)
         draw = empty_draw
-        if cameras.valid[row]:
+        if cameras.valid[row] and one_ring_only:
+            draw = _one_ring_draw(ring_offsets, ring, int(f))
+        elif cameras.valid[row]:
             frame = np.stack([cameras.origin[row], cameras.right[row], cameras.up[row], cameras.normal[row]])
             draw = _window_faces_kernel(V, F, ring_offsets, ring, int(f), frame, cameras.bounds[row],
                                         WINDOW_FACE_LIMIT, stamp, row + 1)
@@ -928,8 +967,9 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
                          constant, float(ridge), cat(pooled, (0,)).astype(np.int64), boxes)
 
 
-def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE):
-    """The loss problem of one triangle (see :func:`prepare_triangles`).
+def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE,
+                     view_faces="window"):
+    """The loss problem of one triangle (see :func:`prepare_triangles`, which documents the parameters).
 
     Returns
     -------
@@ -937,12 +977,12 @@ def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, 
         ``problem.evaluate(params)`` maps (k, 4) rows ``(alpha, lambda1, lambda2, beta)`` to (k,) E values.
     """
     return prepare_triangles(V, F, uv, luma, [face], screen_pixels=screen_pixels, adjacency=adjacency,
-                             ridge=ridge)[0]
+                             ridge=ridge, view_faces=view_faces)[0]
 
 
-def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=None):
-    """Reference render of the faces drawn for one triangle (:func:`.one_ring.window_faces`) with its App. A
-    camera, all texture channels.
+def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=None, view_faces="window"):
+    """Reference render of the faces drawn for one triangle (:func:`.one_ring.window_faces`, or its one-ring
+    with ``view_faces="one_ring"``) with its App. A camera, all texture channels.
 
     Parameters
     ----------
@@ -955,6 +995,8 @@ def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=Non
     screen_pixels : int, optional
     adjacency : tuple, optional
         Output of :func:`.one_ring.one_ring_faces` with ``V``.
+    view_faces : {"window", "one_ring"}, optional
+        Faces drawn, as in :func:`prepare_triangles`.
 
     Returns
     -------
@@ -974,10 +1016,14 @@ def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=Non
     face = int(face)
     if not 0 <= face < len(F):
         raise ValueError(f"face {face} outside 0..{len(F) - 1}")
+    one_ring_only = _check_view_faces(view_faces) == "one_ring"
     offsets, ring = one_ring_faces(F, V=V) if adjacency is None else adjacency
     camera = triangle_cameras(V, F, [face], screen_pixels=screen_pixels)
-    draw = window_faces(V, F, (offsets, ring), face, origin=camera.origin[0], right=camera.right[0],
-                        up=camera.up[0], normal=camera.normal[0], bounds=camera.bounds[0])
+    if one_ring_only:
+        draw = _one_ring_draw(np.asarray(offsets, np.int64), np.asarray(ring, np.int64), face)
+    else:
+        draw = window_faces(V, F, (offsets, ring), face, origin=camera.origin[0], right=camera.right[0],
+                            up=camera.up[0], normal=camera.normal[0], bounds=camera.bounds[0])
     raster = rasterize(V, F, draw, camera)
     values = sample_bilinear(texture, texel_coordinates(uv, raster.face, raster.bary, texture.shape))
     n = camera.screen_pixels

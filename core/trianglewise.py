@@ -65,9 +65,21 @@ Decisions (the paper leaves them open):
   the package's parent modules as bare namespace modules before importing this module, so the extension's
   ``__init__`` (which registers Blender classes) never runs in a worker.
 
+The paper as written (for comparison; every keyword's default is the project's choice): App. A's fixed
+64 px views of the one-ring, the barrier form, no texel floor, no blend, Eq. 17's weights unchanged::
+
+    result = optimize_triangles(V, F, uv, luma, screen_pixels=64, max_screen_pixels=64,
+                                formulation="barrier", view_faces="one_ring")
+    targets = result.fit_targets(uv, luma, min_texels=0)          # no signal_targets: no blend
+    w_R, w_S = result.fit_weights(floor=0.0, rotation_scale=1.0)  # Eq. 17 as measured
+
+then one mesh-wise fit, ``solve_meshwise(F, uv, targets, w_R, w_S, texel_scale=(w, h))`` with its default
+``w_rs = 1e-5`` (Eq. 19, :func:`.meshwise.solve_meshwise`; ``(h, w)`` the texture's shape, as the targets are
+in texels). E stays GMSD over the covered pixels (:func:`.gmsd.covered_gmsd`) in both settings.
+
 References
 ----------
-Sun et al. 2022, Sec. 4.1 (Eq. 6-7, 12-14), Sec. 4.2 (Eq. 17).
+Sun et al. 2022, Sec. 4.1 (Eq. 6-7, 12-14), Sec. 4.2 (Eq. 17), App. A.
 """
 import contextlib
 import dataclasses
@@ -81,7 +93,7 @@ import numpy as np
 from . import bayesopt
 from .camera import texel_matched_pixels
 from .charts import texel_areas
-from .loss import prepare_triangles, texture_luma, textured_triangles
+from .loss import _check_view_faces, prepare_triangles, texture_luma, textured_triangles
 from .one_ring import one_ring_faces
 from .progress import run_generator
 
@@ -586,25 +598,28 @@ def _face_seed(seed, face):
 
 
 def _prepared(state, faces):
-    """The problems of ``faces`` in that order, each with its own view size (``state["view_pixels"]``)."""
+    """The problems of ``faces`` in that order, each with its own view size (``state["view_pixels"]``) and the
+    faces ``state["view_faces"]`` says to draw."""
     sizes = state["view_pixels"][faces]
     problems = [None] * len(faces)
     for size in np.unique(sizes):
         rows = np.flatnonzero(sizes == size)
         batch = prepare_triangles(state["V"], state["F"], state["uv"], state["luma"], np.asarray(faces)[rows],
-                                  screen_pixels=int(size), adjacency=state["adjacency"])
+                                  screen_pixels=int(size), adjacency=state["adjacency"],
+                                  view_faces=state["view_faces"])
         for row, problem in zip(rows, batch):
             problems[row] = problem
     return problems
 
 
-def _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, options):
-    """What the workers share: the mesh, the texture, the one-rings and every face's view size."""
+def _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, options, view_faces="window"):
+    """What the workers share: the mesh, the texture, the one-rings, every face's view size and which faces
+    the views draw (:data:`.loss.VIEW_FACES`)."""
     view_pixels = np.zeros(len(F), dtype=np.int64)
     view_pixels[faces] = texel_matched_pixels(V, F, uv, luma.shape, faces, minimum=screen_pixels,
                                               maximum=max_screen_pixels)
     return {"V": V, "F": F, "uv": uv, "luma": luma, "adjacency": one_ring_faces(F, V=V),
-            "view_pixels": view_pixels, "options": options}
+            "view_pixels": view_pixels, "view_faces": _check_view_faces(view_faces), "options": options}
 
 
 def _optimize_chunk(state, faces):
@@ -803,13 +818,14 @@ def _check_mesh(V, F, uv, luma, faces):
 
 def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
                             max_screen_pixels=MAX_SCREEN_PIXELS, lambda_min=LAMBDA_MIN, formulation=None,
-                            backend="fast", workers=0, seed=0, faces=None, chunk_size=16):
+                            backend="fast", workers=0, seed=0, faces=None, chunk_size=16, view_faces="window"):
     """Generator form of :func:`optimize_triangles`: yields ``(done, total)`` faces, returns the result.
 
     Use ``result = yield from iter_optimize_triangles(...)`` in a pipeline generator, or drive it one step per
     timer tick in a modal operator; closing the generator stops the worker processes.
     """
     formulation = _check_options(epsilon, evaluations, lambda_min, formulation, backend)
+    _check_view_faces(view_faces)
     if int(workers) != workers or workers < 0:
         raise ValueError(f"workers must be an integer >= 0, got {workers}")
     if chunk_size < 1:
@@ -818,7 +834,7 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
     total = len(faces)
     state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels,
                    {"epsilon": float(epsilon), "evaluations": int(evaluations), "lambda_min": float(lambda_min),
-                    "formulation": formulation, "backend": backend, "seed": int(seed)})
+                    "formulation": formulation, "backend": backend, "seed": int(seed)}, view_faces)
     row_of = {int(face): row for row, face in enumerate(faces)}
     params = np.empty((total, 4))
     loss, w_R, w_S = np.empty(total), np.empty(total), np.empty(total)
@@ -839,7 +855,7 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
 
 def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
                        max_screen_pixels=MAX_SCREEN_PIXELS, lambda_min=LAMBDA_MIN, formulation=None, backend="fast",
-                       workers=0, seed=0, faces=None, chunk_size=16, progress=None):
+                       workers=0, seed=0, faces=None, chunk_size=16, progress=None, view_faces="window"):
     """Triangle-wise stage: optimal deformation and sensitivity weights of every triangle.
 
     Parameters
@@ -859,7 +875,8 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
     max_screen_pixels : int, optional
         A triangle spanning more input texels than ``screen_pixels`` across its view gets one pixel per texel,
         up to this side (:func:`.camera.texel_matched_pixels`); ``screen_pixels`` or less keeps App. A's fixed
-        size.
+        size: ``screen_pixels=64, max_screen_pixels=64`` gives every view App. A's 64 x 64 px (the side is
+        ``clip(t, 64, max(64, 64)) = 64``), with App. A's window (:func:`.camera.triangle_cameras`).
     lambda_min : float, optional
         Lower bound of the stretch eigenvalues.
     formulation : {"constrained", "barrier"}, optional
@@ -876,6 +893,10 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
         Faces per task (and per progress step).
     progress : callable, optional
         Called as ``progress(done, total)``.
+    view_faces : {"window", "one_ring"}, optional
+        Faces each view draws (:func:`.loss.prepare_triangles`): ``"window"`` (default) the one-ring and the
+        faces connected to it that reach into the window; ``"one_ring"`` the triangle and its one-ring only,
+        as App. A. See the module notes for the paper's settings as a whole.
 
     Returns
     -------
@@ -883,13 +904,13 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
 
     References
     ----------
-    Sun et al. 2022, Sec. 4.1, Eq. 7, 12-14, 17.
+    Sun et al. 2022, Sec. 4.1, Eq. 7, 12-14, 17, App. A.
     """
     stage = iter_optimize_triangles(V, F, uv, luma, epsilon=epsilon, evaluations=evaluations,
                                     screen_pixels=screen_pixels, max_screen_pixels=max_screen_pixels,
                                     lambda_min=lambda_min, formulation=formulation,
                                     backend=backend, workers=workers, seed=seed, faces=faces,
-                                    chunk_size=chunk_size)
+                                    chunk_size=chunk_size, view_faces=view_faces)
     return run_generator(stage, progress)
 
 
@@ -905,7 +926,7 @@ def _params_from_jacobians(J):
 
 
 def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
-              workers=1, chunk_size=64):
+              workers=1, chunk_size=64, view_faces="window"):
     """Triangle-wise loss E of a new UV map, each triangle measured with its own deformation.
 
     The deformation of triangle ``i`` is the affine map from its input UVs to ``new_uv`` (in texel units of
@@ -923,6 +944,8 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
     workers : int, optional
         As in :func:`optimize_triangles` (default in this process).
     chunk_size : int, optional
+    view_faces : {"window", "one_ring"}, optional
+        Faces the views draw, as in :func:`optimize_triangles`.
 
     Returns
     -------
@@ -945,11 +968,12 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
     params = np.full((len(F), 4), np.inf)
     if valid.any():
         params[valid] = _params_from_jacobians(J[valid])
-    return _losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size)
+    return _losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
+                   view_faces)
 
 
 def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
-              workers=1, chunk_size=64):
+              workers=1, chunk_size=64, view_faces="window"):
     """Triangle-wise loss E of given deformations, e.g. the mesh-wise stage's targets.
 
     Parameters
@@ -958,7 +982,7 @@ def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX
         As in :func:`optimize_triangles`.
     params : (k, 4) array_like
         ``(alpha, lambda1, lambda2, beta)`` per face of ``faces`` (Eq. 13-14).
-    screen_pixels, max_screen_pixels, faces, workers, chunk_size
+    screen_pixels, max_screen_pixels, faces, workers, chunk_size, view_faces
         As in :func:`losses_at`.
 
     Returns
@@ -972,12 +996,15 @@ def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX
         raise ValueError(f"params must have shape {(len(faces), 4)}, a row per face, got {params.shape}")
     every = np.full((len(F), 4), np.inf)
     every[faces] = params
-    return _losses(V, F, uv, luma, every, faces, screen_pixels, max_screen_pixels, workers, chunk_size)
+    return _losses(V, F, uv, luma, every, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
+                   view_faces)
 
 
-def _losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size):
+def _losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
+            view_faces="window"):
     """E of ``params`` (m, 4), a row per face of the mesh, at ``faces``, in worker processes."""
-    state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, {"params": params[:, None, :]})
+    state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, {"params": params[:, None, :]},
+                   view_faces)
     out = np.empty(len(faces))
     row_of = {int(face): row for row, face in enumerate(faces)}
     with contextlib.closing(_run_chunks("losses", state, faces, int(workers), int(chunk_size))) as chunks:
