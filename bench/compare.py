@@ -5,19 +5,30 @@ Usage (from /work, the repo's parent folder)::
 
     main/.venv/bin/python -m perceptual_uv.bench.compare --models shared/models --costs 0.1,0.2,0.3,0.5 \\
         --out main/docs/results [--evaluations 100] [--epsilons 0.005,0.02] [--methods input,repacked,...] \\
-        [--screen 512] [--workers 0] [--reuse input,repacked,...] [--triangles CACHE_DIR]
+        [--screen 512] [--workers 0] [--cache DIR | --no-cache] [--reuse input,repacked,...] \\
+        [--triangles CACHE_DIR]
     main/.venv/bin/python -m perceptual_uv.bench.compare --summary main/docs/results
 
 Per model: ``<model>_q_vs_c.png``, ``<model>.md``, ``<model>.json`` and ``<model>_crops_c030.png``;
 ``--summary`` rebuilds ``summary.md`` from every ``<model>.json`` in the folder. Every q is reported with its
-screen size (20 dodecahedron views). ``--reuse`` takes the listed methods' results from the ``<model>.json``
-already in ``--out`` (same costs and screen) instead of recomputing them, for reruns after a change that cannot
-affect those methods; the JSON and the table name the reused methods. ``--triangles`` keeps each model's
-triangle-wise result in a folder (``bridge.baselines.triangle_targets``), so that a change to the mesh-wise
-stage or the packing is measured without that stage again; t_triangle is then the time of the run that wrote it.
+screen size (20 dodecahedron views).
+
+The comparison is resumable: every method's result is written to ``<cache>/<model>/<method>-<key>.json`` (default
+``<out>/cache``) as soon as it is measured, with ours' UV map next to it, and read back instead of being
+recomputed while its key holds. The key (:func:`method_key`) hashes the model's files, the settings that method
+depends on, and the source of the code it runs (:data:`METHOD_SOURCES`), so a rerun after a change recomputes
+only the methods that change touches, and a run cut off halfway loses only the method it was measuring. Progress
+and an ETA go to stderr, one line per model and per method. ``--no-cache`` measures everything again and keeps
+nothing. ``--reuse`` takes the listed methods' results from the ``<model>.json`` already in ``--out`` (at least
+this run's costs, same screen) whatever the code; the JSON and the table name the reused methods.
+``--triangles`` keeps each model's triangle-wise result in a folder (``bridge.baselines.triangle_targets``), so
+that a change to the mesh-wise stage or the packing is measured without that stage again; t_triangle is then
+the time of the run that wrote it.
 """
 
 import argparse
+import ast
+import hashlib
 import json
 import pathlib
 import sys
@@ -26,12 +37,59 @@ import time
 import numpy as np
 
 METHODS = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSP", "SSPOP", "ours",
-           "ours_rotation", "ours_common", "ours_identity")
+           "ours_rotation", "ours_common", "ours_identity", "paper", "ours_no_texel_floor", "ours_no_signal_blend",
+           "ours_no_weight_floor", "ours_no_fold_restore")
 BASELINES = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSPOP")
 """The methods the issue's target says ours must beat at c_r = 0.2, 0.3 and 0.5."""
 MODEL_SUFFIXES = (".glb", ".gltf", ".obj", ".blend")
 SAVING_REFERENCE_COST = 0.5
 WIN_COSTS = (0.2, 0.3, 0.5)
+OURS_VARIANTS = {"ours": {}, "ours_common": {"formulation": "common"}, "ours_identity": {"weights": "identity"},
+                 "ours_rotation": {"rotation_scale": 1.0},
+                 "ours_no_texel_floor": {"min_texels": 0.0}, "ours_no_signal_blend": {"signal_weight": 0.0},
+                 "ours_no_weight_floor": {"weight_floor": 0.0}, "ours_no_fold_restore": {"fold_tolerance": 1.0},
+                 "paper": {"min_texels": 0.0, "signal_weight": 0.0, "weight_floor": 0.0, "rotation_scale": 1.0}}
+"""Keyword arguments of ``bridge.baselines.perceptual_uv`` for ours, its Fig. 17 ablations, ours without each of
+the constants the project added (``MIN_TEXELS``, ``SIGNAL_WEIGHT``, ``STRETCH_WEIGHT_FLOOR``; a fold tolerance of
+1 restores no chart, since a shared-area fraction cannot grow by more than 1), and ``paper``: the paper as
+written, i.e. one fit of Eq. 19 with Eq. 17's weights unchanged (no texel floor, no signal-stretch blend, no
+weight floor) on the triangle-wise results of :data:`PAPER_TRIANGLES`, then the post-processing, packing and
+bake every method gets."""
+PAPER_TRIANGLES = {"formulation": "barrier", "max_screen_pixels": 64, "view_faces": "one_ring"}
+"""The triangle-wise stage as written: the barrier form (Eq. 12-14) and App. A's fixed 64 px views of the
+one-ring."""
+TRIANGLE_OPTIONS = {"paper": PAPER_TRIANGLES}
+"""Options of ``core.trianglewise.optimize_triangles`` per method whose triangle-wise stage is not ours'."""
+
+_PACKED = ("bridge.pack", "bridge.baselines:_check", "bridge.baselines:_pack", "bridge.baselines:_write",
+           "bridge.baselines:_texture", "bridge.baselines:PACK_MARGIN_PIXELS")
+_FINISHED = _PACKED + ("core.charts", "core.overlap", "core.meshwise", "bridge.baselines:finish_charts",
+                       "bridge.baselines:_finished", "bridge.baselines:_post_counts")
+_OURS = _FINISHED + ("core.chartfit", "core.trianglewise", "core.loss", "core.ssp",
+                     "bridge.baselines:perceptual_uv", "bridge.baselines:triangle_targets",
+                     "bridge.baselines:_triangle_cache_key", "bench.compare:UVMaps.triangles",
+                     "bench.compare:OURS_VARIANTS", "bench.compare:TRIANGLE_OPTIONS",
+                     "bench.compare:PAPER_TRIANGLES")
+METHOD_SOURCES = {
+    "input": (),
+    "repacked": _PACKED + ("bridge.baselines:repacked_input",),
+    **{m: _FINISHED + ("bridge.baselines:blender_unwrap", "bridge.baselines:BLENDER_METHODS")
+       for m in ("ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH")},
+    "SSP": _FINISHED + ("core.ssp", "bridge.baselines:ssp_uv"),
+    "SSPOP": _FINISHED + ("core.ssp", "bridge.baselines:sspop_uv"),
+    **{m: _OURS for m in OURS_VARIANTS},
+}
+"""The code each method's result depends on, for its cache key (:func:`method_key`), besides the evaluation
+(:data:`EVALUATION_SOURCES`). ``"core.ssp"`` is that module and the modules of this package it imports, followed
+through their imports; ``"bridge.baselines:ssp_uv"`` is one definition of a module that imports everything, so
+that a change to one method there does not recompute the others. ``ours_eps<epsilon>`` depends on what ``ours``
+does; a method not listed (a new one) depends on every module of core/ and bridge/ and on this file."""
+EVALUATION_SOURCES = ("bridge.evaluate", "bridge.mesh_io", "bridge.material", "bridge.batch:textured_objects")
+"""What every method's result depends on: the import of the model, the renders, the bakes and q_r."""
+KEPT_MAPS = ("ours",)
+"""Methods whose UV map is cached with their result: the crops and the pixel saving need it."""
+_HUBS = ("bridge.baselines", "bench.compare")
+_PACKAGE = pathlib.Path(__file__).resolve().parent.parent
 
 
 def _models(paths):
@@ -56,21 +114,26 @@ class UVMaps:
         self.evaluations, self.epsilon, self.workers = evaluations, epsilon, workers
         self.cache = cache  # (folder, model stem) or None
         self.times, self._triangles = {}, {}
+        self.reports = {}  # per method: what bridge.baselines returned (timings, restored and turned charts)
 
-    def triangles(self, epsilon):
-        """The triangle-wise result at ``epsilon``: run once per epsilon, or read from the cache."""
+    def triangles(self, epsilon, method="ours"):
+        """The triangle-wise result at ``epsilon`` with ``method``'s options (:data:`TRIANGLE_OPTIONS`): run once
+        per epsilon and options, or read from the cache."""
         from ..bridge import baselines
 
-        if epsilon not in self._triangles:
+        options = TRIANGLE_OPTIONS.get(method, {})
+        label = "" if not options else f"_{method}"
+        if (epsilon, label) not in self._triangles:
             cache = None
             if self.cache is not None:
                 folder, stem = self.cache
-                cache = folder / f"{stem}_eps{epsilon:g}_n{self.evaluations}.npz"
-            self._triangles[epsilon], t = baselines.triangle_targets(
+                cache = folder / f"{stem}_eps{epsilon:g}_n{self.evaluations}{label}.npz"
+            self._triangles[epsilon, label], t = baselines.triangle_targets(
                 self.objects, source_uv=self.source, epsilon=epsilon, evaluations=self.evaluations,
-                workers=self.workers, cache=cache)
-            self.times["triangle" if epsilon == self.epsilon else f"triangle_eps{epsilon:g}"] = t
-        return self._triangles[epsilon]
+                workers=self.workers, cache=cache, **options)
+            name = "triangle" if epsilon == self.epsilon else f"triangle_eps{epsilon:g}"
+            self.times[name + label] = t
+        return self._triangles[epsilon, label]
 
     def make(self, method):
         """Adds the UV map of ``method``; returns its name."""
@@ -79,31 +142,218 @@ class UVMaps:
         objects, source = self.objects, self.source
         start = time.perf_counter()
         name = {"input": source, "repacked": "Repacked"}.get(method, method)
+        report = {}
         if method == "repacked":
-            baselines.repacked_input(objects, source_uv=source, name=name)
+            report = baselines.repacked_input(objects, source_uv=source, name=name)
         elif method in baselines.BLENDER_METHODS:
-            baselines.blender_unwrap(objects, source_uv=source, method=method)
+            report = baselines.blender_unwrap(objects, source_uv=source, method=method)
         elif method == "SSP":
-            baselines.ssp_uv(objects, source_uv=source, name=name)
+            report = baselines.ssp_uv(objects, source_uv=source, name=name)
         elif method == "SSPOP":
-            baselines.sspop_uv(objects, source_uv=source, name=name)
+            report = baselines.sspop_uv(objects, source_uv=source, name=name)
         elif method != "input":
             eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else self.epsilon
-            triangles = self.triangles(eps)
+            triangles = self.triangles(eps, method)
             start = time.perf_counter()  # the triangle-wise time is reported on its own
-            kw = {"ours_common": {"formulation": "common"}, "ours_identity": {"weights": "identity"},
-                  "ours_rotation": {"rotation_scale": 1.0}}.get(method, {})
-            t = baselines.perceptual_uv(objects, source_uv=source, triangles=triangles, name=name,
-                                        workers=self.workers, **kw)
+            report = baselines.perceptual_uv(objects, source_uv=source, triangles=triangles, name=name,
+                                             workers=self.workers, **OURS_VARIANTS.get(method, {}))
             if method == "ours":
-                self.times["mesh"] = t["mesh"]
+                self.times["mesh"] = report["mesh"]
         self.times[method] = time.perf_counter() - start
+        self.reports[method] = report
         return name
 
     def remove(self, name):
         if name != self.source:
             for obj in self.objects:
                 obj.data.uv_layers.remove(obj.data.uv_layers[name])
+
+
+def _module_file(module, package=_PACKAGE):
+    return package.joinpath(*module.split(".")).with_suffix(".py")
+
+
+def _imported_modules(module, package=_PACKAGE):
+    """Modules of this package that ``module`` imports anywhere in its file (also inside functions)."""
+    parts = module.split(".")
+    found = set()
+    for node in ast.walk(ast.parse(_module_file(module, package).read_text())):
+        names = []
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = parts[:len(parts) - node.level]
+            elif node.module and node.module.split(".")[0] == "perceptual_uv":
+                base = []
+            else:
+                continue
+            stem = [p for p in (node.module or "").split(".") if p and p != "perceptual_uv"] if not node.level \
+                else [p for p in (node.module or "").split(".") if p]
+            names = [".".join(base + stem)] + [".".join(base + stem + [a.name]) for a in node.names]
+        elif isinstance(node, ast.Import):
+            names = [a.name.split(".", 1)[1] for a in node.names if a.name.startswith("perceptual_uv.")]
+        found.update(n for n in names if n and _module_file(n, package).is_file())
+    return found
+
+
+def _definition_source(module, name, package=_PACKAGE):
+    """The source of the top-level definition or assignment ``name`` (``Class.method`` too) in ``module``."""
+    text = _module_file(module, package).read_text()
+    body = ast.parse(text).body
+    *outer, last = name.split(".")
+    for part in outer:
+        body = next(n.body for n in body if isinstance(n, ast.ClassDef) and n.name == part)
+    for node in body:
+        targets = [t.id for t in getattr(node, "targets", []) if isinstance(t, ast.Name)]
+        if getattr(node, "name", None) == last or last in targets:
+            return ast.get_source_segment(text, node)
+    raise KeyError(f"{module} has no definition {name}")
+
+
+def code_hash(sources, package=_PACKAGE):
+    """SHA-256 of the source ``sources`` name: modules with their imports (not through :data:`_HUBS`), and
+    ``module:name`` definitions (see :data:`METHOD_SOURCES`)."""
+    files, todo, texts = set(), [], []
+    for source in sources:
+        if ":" in source:
+            module, name = source.split(":")
+            texts.append(f"{source}\n{_definition_source(module, name, package)}")
+        else:
+            todo.append((source, True))
+    while todo:
+        module, named = todo.pop()
+        if module in files or (module in _HUBS and not named):
+            continue
+        files.add(module)
+        todo.extend((m, False) for m in _imported_modules(module, package))
+    texts += [f"{module}\n{_module_file(module, package).read_text()}" for module in sorted(files)]
+    return hashlib.sha256("\n".join(sorted(texts)).encode()).hexdigest()
+
+
+def method_sources(method):
+    """The sources a method's result depends on (:data:`METHOD_SOURCES` and :data:`EVALUATION_SOURCES`)."""
+    if method.startswith("ours_eps"):
+        method = "ours"
+    if method not in METHOD_SOURCES:
+        every = sorted(".".join(f.relative_to(_PACKAGE).with_suffix("").parts)
+                       for folder in ("core", "bridge") for f in (_PACKAGE / folder).glob("*.py"))
+        return tuple(every) + ("bench.compare",)
+    return METHOD_SOURCES[method] + EVALUATION_SOURCES
+
+
+def model_hash(path):
+    """SHA-256 of a model file and of every other file in its folder (textures, buffers), names included."""
+    path = pathlib.Path(path)
+    digest = hashlib.sha256()
+    for file in sorted(f for f in path.parent.rglob("*") if f.is_file()):
+        if file.suffix.lower() in MODEL_SUFFIXES and file != path:
+            continue
+        digest.update(str(file.relative_to(path.parent)).encode())
+        digest.update(file.read_bytes())
+    return digest.hexdigest()
+
+
+def method_settings(method, *, costs, screen, evaluations, epsilon):
+    """The settings a method's result depends on."""
+    settings = dict(costs=sorted(float(c) for c in costs), screen=int(screen))
+    if method in OURS_VARIANTS or method.startswith("ours_eps"):
+        eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else float(epsilon)
+        settings.update(evaluations=int(evaluations), epsilon=eps, variant=OURS_VARIANTS.get(method, {}),
+                        triangle_options=TRIANGLE_OPTIONS.get(method, {}))
+    return settings
+
+
+def method_key(method, *, model, settings, code):
+    """The cache key of one method's result: 16 hex digits of the hash of model, settings and code hashes."""
+    text = json.dumps(dict(method=method, model=model, settings=settings, code=code), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+class ResultCache:
+    """One folder per model of per-method results, ``<folder>/<model>/<method>-<key>.json`` (see the module
+    docstring); ``folder`` None keeps nothing."""
+
+    def __init__(self, folder, *, costs, screen, evaluations, epsilon):
+        self.folder = None if folder is None else pathlib.Path(folder)
+        self.settings = dict(costs=costs, screen=screen, evaluations=evaluations, epsilon=epsilon)
+        self._code, self._models = {}, {}
+
+    def key(self, path, method):
+        path = pathlib.Path(path)
+        if path not in self._models:
+            self._models[path] = model_hash(path)
+        if method not in self._code:
+            self._code[method] = code_hash(method_sources(method))
+        return method_key(method, model=self._models[path], code=self._code[method],
+                          settings=method_settings(method, **self.settings))
+
+    def file(self, path, method):
+        return None if self.folder is None else \
+            self.folder / pathlib.Path(path).stem / f"{method}-{self.key(path, method)}.json"
+
+    def load(self, path, method):
+        """The cached entry (``result``, ``times``, and ``uv`` for :data:`KEPT_MAPS`), or None."""
+        file = self.file(path, method)
+        if file is None or not file.is_file():
+            return None
+        try:
+            entry = json.loads(file.read_text())
+            if method in KEPT_MAPS:
+                with np.load(file.with_suffix(".npz")) as stored:
+                    entry["uv"] = stored["uv"]
+        except (OSError, ValueError, KeyError) as error:  # a file cut off by an interrupted run is measured again
+            print(f"cache: ignoring {file}: {error}", file=sys.stderr, flush=True)
+            return None
+        return entry
+
+    def save(self, path, method, *, result, times, uv=None):
+        file = self.file(path, method)
+        if file is None:
+            return
+        file.parent.mkdir(parents=True, exist_ok=True)
+        if uv is not None:
+            _atomic_write(file.with_suffix(".npz"), lambda f: np.savez_compressed(f, uv=uv))
+        entry = dict(method=method, key=file.stem.rsplit("-", 1)[1],
+                     settings=method_settings(method, **self.settings), result=result, times=times)
+        _atomic_write(file, lambda f: f.write(json.dumps(entry, indent=1).encode()))
+
+
+def _atomic_write(file, write):
+    """Write through a temporary file and rename it, so that an interrupted run leaves no half-written file."""
+    temporary = file.with_name(file.name + ".part")
+    with open(temporary, "wb") as f:
+        write(f)
+    temporary.replace(file)
+
+
+class Progress:
+    """One line on stderr per model and per method done, with an ETA from the methods measured so far."""
+
+    def __init__(self, to_measure, total):
+        self.left, self.total, self.done = to_measure, total, 0
+        self.seconds = {}  # method -> seconds of each measurement in this run
+
+    def model(self, index, count, stem, measure, cached):
+        print(f"[model {index}/{count}] {stem}: {measure} methods to measure, {cached} cached or reused",
+              file=sys.stderr, flush=True)
+
+    def method(self, stem, method, seconds, how):
+        self.done += 1
+        if how == "measured":
+            self.left = max(0, self.left - 1)
+            self.seconds.setdefault(method, []).append(seconds)
+        print(f"[{self.done}/{self.total}] {stem} {method}: {how} in {seconds:.1f} s; {self.left} to measure, "
+              f"ETA {_duration(self.eta())}", file=sys.stderr, flush=True)
+
+    def eta(self):
+        """Seconds left: the mean time per measured method of this run for every method still to measure."""
+        measured = [t for times in self.seconds.values() for t in times]
+        return self.left * float(np.mean(measured)) if measured else None
+
+
+def _duration(seconds):
+    if seconds is None:
+        return "unknown"
+    return f"{seconds / 60:.0f} min" if seconds >= 90 else f"{seconds:.0f} s"
 
 
 def _pixel_saving(objects, source, names, results, reference, screen):
@@ -122,7 +372,7 @@ def _pixel_saving(objects, source, names, results, reference, screen):
         saving = pixel_saving([p["relative_cost"] for p in points], [p["q"] for p in points], target[0],
                               reference_cost=SAVING_REFERENCE_COST)
         lowest = min(p["target_cost"] for p in points)
-        if saving.bracketed != "below" or lowest <= 1 / 32:
+        if saving.bracketed != "below" or lowest <= 1 / 32 or "ours" not in names:
             break
         extra = evaluate_uv_map(objects, names["ours"], reference_uv=source, costs=(lowest / 2,),
                                 screen_pixels=screen, reference_views=reference)
@@ -158,17 +408,20 @@ def _previous_results(file, methods, *, costs, screen):
         raise SystemExit(f"--reuse: {file} has no results for {missing}")
     for method in methods:
         result = data["results"][method]
-        if result["screen_pixels"] != screen or sorted(p["target_cost"] for p in result["points"]) != sorted(costs):
+        # ours' points may go below the costs (the pixel saving's crossing)
+        if result["screen_pixels"] != screen or not set(costs) <= {p["target_cost"] for p in result["points"]}:
             raise SystemExit(f"--reuse: {file} has {method} at other costs or another screen size than this run")
     return {m: data["results"][m] for m in methods}, {m: data["times_s"].get(m) for m in methods}
 
 
 def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilons, workers, out, reuse=(),
-                  triangles=None):
+                  triangles=None, cache=None, progress=None):
     """Runs every method on one model file and writes its plot, crops, markdown table and JSON; returns the table.
 
     The methods in ``reuse`` are read from the ``<model>.json`` already in ``out`` instead of being run;
-    ``triangles`` is the folder of cached triangle-wise results, if any.
+    ``triangles`` is the folder of cached triangle-wise results, if any; ``cache`` a :class:`ResultCache`
+    whose results are taken and to which every method measured is written as soon as it is; ``progress`` a
+    :class:`Progress`.
     """
     import bpy
 
@@ -190,40 +443,77 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     reference = render_views(objects, uv_name=source, screen_pixels=screen)
     maps = UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers,
                    cache=None if triangles is None else (triangles, stem))
-    names, results = {}, {}
+    names, results, cached_times, cached = {"input": source}, {}, {}, []
     # Blender keeps at most 8 UV maps per mesh: each map is evaluated as soon as it exists and then removed,
     # except the two the crops and the pixel saving need.
     failures = {}
     for method in list(methods) + [_epsilon_method(e) for e in epsilons]:
-        if method in reused:
-            results[method] = reused[method]
-            if method == "input":
-                names[method] = source
+        start = time.perf_counter()
+        entry = None if method in reused or cache is None else cache.load(path, method)
+        if method in reused or entry is not None:
+            results[method] = reused[method] if entry is None else entry["result"]
+            if entry is not None:
+                cached.append(method)
+                cached_times.update(entry["times"])
+                if "uv" in entry:
+                    _write_map(objects, method, entry["uv"])
+                    names[method] = method
+            if progress:
+                progress.method(stem, method, time.perf_counter() - start, "reused" if entry is None else "cached")
             continue
+        before = dict(maps.times)
         try:
             names[method] = maps.make(method)
         except ValueError as error:  # a baseline that cannot handle this input is reported, not fatal
             failures[method] = str(error)
             print(f"{path.stem} {method}: FAILED: {error}", flush=True)
+            if progress:
+                progress.method(stem, method, time.perf_counter() - start, "failed")
             continue
         results[method] = evaluate_uv_map(objects, names[method], reference_uv=source, costs=costs,
                                           screen_pixels=screen, reference_views=reference)
+        post = {k: v for k, v in maps.reports.get(method, {}).items() if k.endswith("_charts")}
+        if post:
+            results[method]["post"] = post
         print(f"{path.stem} {method}: " + ", ".join(f"c {p['relative_cost']:.3f} q {p['q']:.4g}"
                                                      for p in results[method]["points"]), flush=True)
+        if cache is not None:
+            # this method's times, and for ours the triangle-wise stage's, even when an earlier method ran it
+            triangle = "triangle" if method in OURS_VARIANTS else \
+                f"triangle_eps{method[len('ours_eps'):]}" if method.startswith("ours_eps") else None
+            own = {k: t for k, t in maps.times.items() if before.get(k) != t or k == triangle}
+            cache.save(path, method, result=results[method], times=own,
+                       uv=mesh_arrays(objects, names[method])[2] if method in KEPT_MAPS else None)
+        if progress:
+            progress.method(stem, method, time.perf_counter() - start, "measured")
         if method not in ("input", "ours"):
             maps.remove(names.pop(method))
-    times = {**{m: t for m, t in reused_times.items() if t is not None}, **maps.times}
+    times = {**{m: t for m, t in reused_times.items() if t is not None}, **cached_times, **maps.times}
+    extent = len(results["ours"]["points"]) if "ours" in results else 0
     saving = _pixel_saving(objects, source, names, results, reference, screen)
+    if cache is not None and "ours" in results and len(results["ours"]["points"]) != extent and "ours" not in reused:
+        # the points the pixel saving added below the costs are kept with ours' result
+        entry = cache.load(path, "ours")
+        if entry is not None:
+            cache.save(path, "ours", result=results["ours"], times=entry["times"], uv=entry.get("uv"))
     surface_area = float(symmetric_dirichlet(V, F, uv, full=True)[1]["area"])
     table = dict(model=stem, vertices=len(V), faces=len(F), surface_area=surface_area, input_resolution=r_input,
                  input_cost=float(texel_cost(uv, r_input)), epsilon=epsilon, evaluations=evaluations,
                  screen_pixels=screen, t_triangle=times.get("triangle"), t_mesh=times.get("mesh"),
-                 pixel_saving=saving, beaten_by=_wins(results), failures=failures, reused=sorted(reused))
+                 pixel_saving=saving, beaten_by=_wins(results), failures=failures, reused=sorted(reused),
+                 cached=sorted(cached))
     _plot(results, out / f"{stem}_q_vs_c.png", stem, screen)
     _crops(objects, names, source, reference, out / f"{stem}_crops_c030.png", screen)
     (out / f"{stem}.md").write_text(_model_markdown(table, results, costs))
     (out / f"{stem}.json").write_text(json.dumps({"table": table, "times_s": times, "results": results}, indent=1))
     return (out / f"{stem}.md").read_text()
+
+
+def _write_map(objects, name, uv):
+    """Write a cached UV map (per face corner, in ``mesh_arrays`` order) as UV map ``name``."""
+    from ..bridge.baselines import _write
+
+    _write(objects, name, uv)
 
 
 def _fmt_time(t):
@@ -278,7 +568,8 @@ def write_summary(folder):
         t, results = data["table"], data["results"]
         q03 = {m: next((p["q"] for p in r["points"] if p["target_cost"] == 0.3), None) for m, r in results.items()}
         # every other method, SSP included although the issue's target leaves it out (``BASELINES``)
-        baseline = min(((q, m) for m, q in q03.items() if m != "input" and not m.startswith("ours") and q is not None),
+        baseline = min(((q, m) for m, q in q03.items()
+                        if m != "input" and m not in OURS_VARIANTS and not m.startswith("ours") and q is not None),
                        default=None)
         saving = t["pixel_saving"]
         if saving and saving["position"] != "above":
@@ -373,6 +664,8 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, default=0, help="triangle-wise workers (0: one per core)")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--reuse", default="", help="methods whose results are read from the <model>.json in --out")
+    parser.add_argument("--cache", type=pathlib.Path, help="folder of per-method results (default: <out>/cache)")
+    parser.add_argument("--no-cache", action="store_true", help="measure every method again and keep nothing")
     parser.add_argument("--triangles", type=pathlib.Path, help="folder that keeps the triangle-wise results")
     parser.add_argument("--summary", type=pathlib.Path, help="only rebuild summary.md in this folder")
     args = parser.parse_args(argv)
@@ -391,10 +684,18 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     if args.triangles:
         args.triangles.mkdir(parents=True, exist_ok=True)
-    for path in _models(args.models):
+    cache = ResultCache(None if args.no_cache else args.cache or args.out / "cache", costs=costs, screen=args.screen,
+                        evaluations=args.evaluations, epsilon=args.epsilon)
+    models = _models(args.models)
+    every = list(methods) + [_epsilon_method(e) for e in epsilons]
+    to_measure = {path: [m for m in every if m not in reuse and not (cache.folder and cache.file(path, m).is_file())]
+                  for path in models}
+    progress = Progress(sum(map(len, to_measure.values())), len(models) * len(every))
+    for index, path in enumerate(models, 1):
+        progress.model(index, len(models), path.stem, len(to_measure[path]), len(every) - len(to_measure[path]))
         print(compare_model(path, costs=costs, methods=methods, evaluations=args.evaluations, screen=args.screen,
                             epsilon=args.epsilon, epsilons=epsilons, workers=args.workers, out=args.out,
-                            reuse=reuse, triangles=args.triangles),
+                            reuse=reuse, triangles=args.triangles, cache=cache, progress=progress),
               flush=True)
     print(write_summary(args.out))
     return 0

@@ -2,7 +2,9 @@
 
 Every function adds one UV map (the input UV map, image, materials and mesh stay as they were; Blender's
 unwrap runs on temporary copies of the objects) and packs it with 90-degree rotations only
-(:func:`bridge.pack.pack_uv_layer`, DESIGN decision 7).
+(:func:`bridge.pack.pack_uv_layer`, DESIGN decision 7). Before packing, every method's charts get the same
+post-processing (:func:`finish_charts`: folded charts keep their input layout, every chart is turned rigidly to
+its rotation targets), so that a comparison measures the methods and not whether they were given the fallbacks.
 
 References
 ----------
@@ -18,18 +20,20 @@ import bpy
 import numpy as np
 
 from ..core.chartfit import fit_charts
+from ..core.charts import uv_topology
 from ..core.loss import texture_luma
-from ..core.meshwise import solve_meshwise
-from ..core.overlap import restore_folded_charts
+from ..core.meshwise import orient_charts, solve_meshwise
+from ..core.overlap import FOLD_TOLERANCE, restore_folded_charts
 from ..core.ssp import solve_ssp, ssp_targets
-from ..core.trianglewise import TrianglewiseResult, losses_at, optimize_triangles
+from ..core.trianglewise import (MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult, losses_at,
+                                 optimize_triangles)
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
 from .material import base_color_image_node
 
-__all__ = ["BLENDER_METHODS", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv", "perceptual_uv",
-           "triangle_targets"]
+__all__ = ["BLENDER_METHODS", "finish_charts", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv",
+           "perceptual_uv", "triangle_targets"]
 
 BLENDER_METHODS = ("ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH")
 
@@ -62,6 +66,73 @@ def _write(objects, name, uv_all):
         start += m
 
 
+def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scale=(1.0, 1.0)):
+    """The post-processing of every method's charts before packing: the fold restore, then the chart turn.
+
+    Folded charts get their input layout back at their new size (:func:`core.overlap.restore_folded_charts`);
+    then every chart is turned rigidly to the angle that best meets its rotation targets
+    (:func:`core.meshwise.orient_charts`, which changes no stretch and no fold). These are the two steps
+    :func:`core.chartfit.fit_charts` applies to each of its fits, in that order and with the same functions.
+
+    Parameters
+    ----------
+    uv_in : (m, 3, 2) array_like of float
+        Input UVs per face corner.
+    uv_new : (m, 3, 2) array_like of float
+        The method's UVs of the same charts, before packing.
+    face_chart : (m,) array_like of int
+        Chart of every face in the input (``uv_topology(F, uv_in).face_chart``).
+    alpha, w_R : (m,) array_like of float, optional
+        The method's own rotation targets (angles to the input's texel grid) and their weights. Without them,
+        ``alpha = 0`` and ``w_R = 1``: every chart is turned back to the input's texel grid, weighing its
+        triangles by their input area.
+    texel_scale : (2,) array_like of float, optional
+        Texels per UV unit of the input texture along u and v.
+
+    Returns
+    -------
+    uv : (m, 3, 2) float64 ndarray
+    restored : (k,) int64 ndarray
+        Charts given their input layout.
+    angles : (n_charts,) float64 ndarray
+        The turn of every chart.
+
+    Notes
+    -----
+    Each method is turned towards its own targets. Ours has them: the triangle-wise optimum's rotation
+    ``alpha`` with Eq. 17's ``w_R``. SSP, SSPOP (``w_R = 0``, paper Sec. 5.2.2) and Blender's unwraps carry
+    no rotation target: their energies do not change when a chart turns, so the angle each chart ends at is
+    whatever the solver drifted to (the unwraps start each island at an arbitrary angle). The only
+    orientation information they have is the input's, on which the texture's lines were painted along the
+    texel grid; keeping it (``alpha = 0``) is Eq. 16's rotation term with the identity as every target, and
+    ``w_R = 1`` weighs every triangle by its area only, as no method among them measures which triangles care.
+    With the packer's quarter turns (DESIGN decision 7), a chart at any multiple of 90 degrees to the input is
+    on the grid, which is the symmetry ``orient_charts`` minimizes over.
+    """
+    uv_in = np.asarray(uv_in, dtype=np.float64)
+    face_chart = np.asarray(face_chart)
+    uv, restored = restore_folded_charts(uv_in, uv_new, face_chart)
+    m = len(uv_in)
+    alpha = np.zeros(m) if alpha is None else alpha
+    w_R = np.ones(m) if w_R is None else w_R
+    uv, angles = orient_charts(uv_in, uv, face_chart, alpha, w_R, texel_scale=texel_scale)
+    return uv, restored, angles
+
+
+def _finished(objects, name, uv_in, F, uv_new, texture, start):
+    """Post-process ``uv_new`` (:func:`finish_charts`), write it as UV map ``name`` and pack it; returns timings
+    (s) and what the post-processing did."""
+    uv, restored, angles = finish_charts(uv_in, uv_new, uv_topology(F, uv_in).face_chart,
+                                         texel_scale=texture.shape[1::-1])
+    _write(objects, name, uv)
+    _pack(objects, name)
+    return {"total": time.perf_counter() - start, **_post_counts(restored, angles)}
+
+
+def _post_counts(restored, angles):
+    return {"restored_charts": int(len(restored)), "turned_charts": int(np.count_nonzero(angles))}
+
+
 def _texture(objects):
     for obj in objects:
         for slot in obj.material_slots:
@@ -84,8 +155,9 @@ def repacked_input(objects, *, source_uv, name="InputRepacked"):
 def blender_unwrap(objects, *, source_uv, method, name=None):
     """Blender's unwrap (``method`` in :data:`BLENDER_METHODS`) with seams from the input islands, packed.
 
-    The unwrap runs on temporary copies (seams marked there); the result is copied to a new UV map ``name``
-    (default the method's name) on the original objects. Returns timings (s).
+    The unwrap runs on temporary copies (seams marked there); the result, post-processed as every method's
+    (:func:`finish_charts`, towards the input's texel grid), is copied to a new UV map ``name`` (default the
+    method's name) on the original objects. Returns timings (s) and the restored and turned chart counts.
     """
     if method not in BLENDER_METHODS:
         raise ValueError(f"method must be one of {BLENDER_METHODS}, got {method!r}")
@@ -98,38 +170,42 @@ def blender_unwrap(objects, *, source_uv, method, name=None):
         bpy.ops.uv.unwrap(method=method, margin=0.0)
 
     uvs = uv_operator_on_copies(objects, source_uv, unwrap)
-    for obj, values in zip(objects, uvs):
-        layer = obj.data.uv_layers.new(name=name)
-        layer.data.foreach_set("uv", values.ravel())
-    _pack(objects, name)
-    return {"total": time.perf_counter() - start}
+    V, F, uv = mesh_arrays(objects, source_uv)
+    # per loop -> per triangle corner, in mesh_arrays' order
+    unwrapped = np.concatenate([values[read_mesh(obj).tri_loops] for obj, values in zip(objects, uvs)])
+    return _finished(objects, name, uv, F, unwrapped, _texture(objects), start)
 
 
 def ssp_uv(objects, *, source_uv, name="SSP", **options):
-    """SSP (Sander et al. 2002) from the input UV map and texture, packed. Returns timings (s)."""
+    """SSP (Sander et al. 2002) from the input UV map and texture, post-processed (:func:`finish_charts`, towards
+    the input's texel grid) and packed. Returns timings (s) and the restored and turned chart counts."""
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
     V, F, uv = mesh_arrays(objects, source_uv)
-    result = solve_ssp(V, F, uv, _texture(objects), **options)
-    _write(objects, name, result.uv)
-    _pack(objects, name)
-    return {"total": time.perf_counter() - start}
+    texture = _texture(objects)
+    result = solve_ssp(V, F, uv, texture, **options)
+    return _finished(objects, name, uv, F, result.uv, texture, start)
 
 
 def sspop_uv(objects, *, source_uv, name="SSPOP"):
-    """SSP's expected stretch as targets of our mesh-wise solver with w_R = 0 (paper Sec. 5.2.2), packed."""
+    """SSP's expected stretch as targets of our mesh-wise solver with w_R = 0 (paper Sec. 5.2.2), post-processed
+    (:func:`finish_charts`, towards the input's texel grid: SSP's targets carry no rotation) and packed.
+    Returns timings (s) and the restored and turned chart counts."""
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
     V, F, uv = mesh_arrays(objects, source_uv)
-    params, w_R, w_S = ssp_targets(V, F, uv, _texture(objects))
+    texture = _texture(objects)
+    params, w_R, w_S = ssp_targets(V, F, uv, texture)
     result = solve_meshwise(F, uv, params, w_R, w_S)
-    _write(objects, name, result.uv)
-    _pack(objects, name)
-    return {"total": time.perf_counter() - start}
+    return _finished(objects, name, uv, F, result.uv, texture, start)
 
 
-def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=64, workers=1, seed=0, cache=None):
+def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=64, workers=1, seed=0, cache=None,
+                     **options):
     """The triangle-wise stage (Sec. 4.1) on the objects: its result and its time (s), reusable across ablations.
+
+    ``options`` go to :func:`core.trianglewise.optimize_triangles` (e.g. the paper's ``formulation="barrier"``,
+    ``max_screen_pixels=64`` and ``view_faces="one_ring"``) and into the cache key.
 
     ``cache`` (an ``.npz`` path) keeps the result between runs, so that a change to the later stages is measured
     without the triangle-wise stage again: it is read when it was written for the same vertices, faces, UVs,
@@ -138,12 +214,13 @@ def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=
     """
     V, F, uv = mesh_arrays(objects, source_uv)
     luma = texture_luma(_texture(objects))
-    settings = dict(epsilon=epsilon, evaluations=evaluations, screen_pixels=screen_pixels, seed=seed)
+    settings = dict(epsilon=epsilon, evaluations=evaluations, screen_pixels=screen_pixels, seed=seed, **options)
     key = _triangle_cache_key(V, F, uv, luma, **settings)
     if cache is not None and os.path.exists(cache):
         with np.load(cache) as stored:
             if str(stored["key"]) == key:
-                fields = {f.name: stored[f.name] for f in dataclasses.fields(TrianglewiseResult)}
+                fields = {f.name: stored[f.name] for f in dataclasses.fields(TrianglewiseResult)
+                          if f.name in stored.files}
                 for name in ("epsilon", "lambda_min"):
                     fields[name] = float(fields[name])
                 for name in ("formulation", "backend"):
@@ -168,13 +245,16 @@ def _triangle_cache_key(V, F, uv, luma, **settings):
 
 
 def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual",
-                  rotation_scale=None, workers=1):
+                  rotation_scale=None, workers=1, min_texels=MIN_TEXELS, signal_weight=SIGNAL_WEIGHT,
+                  weight_floor=STRETCH_WEIGHT_FLOOR, fold_tolerance=FOLD_TOLERANCE):
     """Our mesh-wise stage on triangle-wise results ``triangles``, or one of the Fig. 17 ablations, packed.
 
     By default as in the pipeline (:func:`core.chartfit.fit_charts`): fits with and without Eq. 16's rotation
-    terms, every chart turned to its best angle and keeping the fit whose triangles' loss E is lower. An
-    ablation (``weights``, ``formulation`` or ``rotation_scale`` given) is one fit of Eq. 19 whose folded charts
-    keep their input layout (:func:`core.overlap.restore_folded_charts`).
+    terms, each post-processed as :func:`finish_charts` does, and every chart keeping the fit whose triangles'
+    loss E is lower. An ablation (``weights``, ``formulation`` or ``rotation_scale`` given) is one fit of Eq. 19
+    post-processed by :func:`finish_charts` with the rotation targets and weights ours turns its charts with
+    (the triangle-wise ``alpha`` and Eq. 17's ``w_R``, whatever ``rotation_scale`` the fit used), so that it
+    differs from ours only in what it ablates.
 
     Parameters
     ----------
@@ -187,23 +267,36 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         targets, 0 leaves them out.
     workers : int, optional
         Processes measuring E for the default (``core.trianglewise.losses_at``; 0: one per core).
+    min_texels, signal_weight : float, optional
+        Of :meth:`~core.trianglewise.TrianglewiseResult.fit_targets` (the texel floor and the signal-stretch
+        blend; 0 turns each off).
+    weight_floor : float, optional
+        ``floor`` of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights`.
+    fold_tolerance : float, optional
+        Of :func:`core.overlap.restore_folded_charts`, for the default.
     """
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
     V, F, uv = mesh_arrays(objects, source_uv)
     texture = _texture(objects)
     luma = texture_luma(texture)
-    signal, _, _ = ssp_targets(V, F, uv, texture)
-    params = triangles.fit_targets(uv, luma, signal_targets=signal)
+    signal = ssp_targets(V, F, uv, texture)[0] if signal_weight > 0 else None
+    params = triangles.fit_targets(uv, luma, min_texels=min_texels, signal_targets=signal,
+                                   signal_weight=signal_weight)
     if (weights, formulation, rotation_scale) == ("perceptual", "perceptual", None):
-        uv_fit = fit_charts(F, uv, params, *triangles.fit_weights(),
-                            measure=lambda new_uv: losses_at(V, F, uv, luma, new_uv, workers=workers),
-                            texel_scale=texture.shape[1::-1]).uv
+        fit = fit_charts(F, uv, params, *triangles.fit_weights(floor=weight_floor),
+                         measure=lambda new_uv: losses_at(V, F, uv, luma, new_uv, workers=workers),
+                         texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance)
+        uv_fit, post = fit.uv, _post_counts(fit.restored, fit.angles)
     else:
-        w_R, w_S = triangles.fit_weights(rotation_scale=0.0 if rotation_scale is None else rotation_scale)
-        result = solve_meshwise(F, uv, params, w_R, w_S, weights=weights, formulation=formulation)
-        uv_fit, _ = restore_folded_charts(uv, result.uv, result.topology.face_chart)
+        w_R, w_S = triangles.fit_weights(floor=weight_floor,
+                                         rotation_scale=0.0 if rotation_scale is None else rotation_scale)
+        result = solve_meshwise(F, uv, params, w_R, w_S, weights=weights, formulation=formulation,
+                                texel_scale=texture.shape[1::-1])
+        uv_fit, restored, angles = finish_charts(uv, result.uv, result.topology.face_chart, alpha=params[:, 0],
+                                                 w_R=triangles.fit_weights()[0], texel_scale=texture.shape[1::-1])
+        post = _post_counts(restored, angles)
     t_mesh = time.perf_counter() - start
     _write(objects, name, uv_fit)
     _pack(objects, name)
-    return {"mesh": t_mesh, "total": time.perf_counter() - start}
+    return {"mesh": t_mesh, "total": time.perf_counter() - start, **post}

@@ -18,7 +18,7 @@ import numpy as np
 
 from .charts import UVTopology, uv_topology
 from .meshwise import MeshwiseResult, flipped_triangles, iter_solve_meshwise, orient_charts
-from .overlap import restore_folded_charts, shared_area_fractions
+from .overlap import FOLD_TOLERANCE, restore_folded_charts, shared_area_fractions
 from .progress import run_generator
 
 __all__ = ["ChartFit", "iter_fit_charts", "fit_charts"]
@@ -58,7 +58,8 @@ class ChartFit:
     fits: tuple
 
 
-def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100):
+def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100,
+                    fold_tolerance=FOLD_TOLERANCE):
     """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`."""
     F = np.asarray(F)
     uv = np.asarray(uv, dtype=np.float64)
@@ -80,7 +81,7 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                 fit = finished.value
                 break
             yield index * steps + done, 2 * steps
-        fitted, restored = restore_folded_charts(uv, fit.uv, chart)
+        fitted, restored = restore_folded_charts(uv, fit.uv, chart, tolerance=fold_tolerance)
         fitted, angles = orient_charts(uv, fitted, chart, targets[:, 0], w_R, texel_scale=texel_scale)
         losses = np.asarray(measure(fitted), dtype=np.float64)
         if losses.shape != (len(uv),):
@@ -103,7 +104,8 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                     fits=(plain, turned))
 
 
-def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100, progress=None):
+def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100,
+               fold_tolerance=FOLD_TOLERANCE, progress=None):
     """Fit the mesh-wise stage with and without Eq. 16's rotation terms; each chart keeps the better fit.
 
     Parameters
@@ -127,6 +129,9 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
         angles. ``(1, 1)``: UV units.
     max_iterations : int, optional
         Local-global iterations per fit at most.
+    fold_tolerance : float, optional
+        Of :func:`.overlap.restore_folded_charts`: the growth of a chart's self-shared area fraction above
+        which it gets its input layout back.
     progress : callable, optional
         Called as ``progress(done, total)``.
 
@@ -149,4 +154,4 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
     Sun et al. 2022, Eq. 16-19 (the fit), Sec. 4.1 (E), Eq. 17 (``w_R``), Sec. 4.2 ("Bijectivity").
     """
     return run_generator(iter_fit_charts(F, uv, targets, w_R, w_S, measure=measure, texel_scale=texel_scale,
-                                         max_iterations=max_iterations), progress)
+                                         max_iterations=max_iterations, fold_tolerance=fold_tolerance), progress)

@@ -1,0 +1,162 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""bench.compare's result cache: keyed by model, settings and the code each method runs, written as each method is
+measured, so that a rerun recomputes only what changed and an interrupted run loses only the method it measured."""
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import pytest
+
+from perceptual_uv.bench import compare
+from perceptual_uv.bench.compare import ResultCache, code_hash, method_key, method_settings, method_sources
+
+PACKAGE = pathlib.Path(compare.__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def package(tmp_path):
+    """A copy of the package's Python sources, to change."""
+    root = tmp_path / "pkg"
+    for folder in ("core", "bridge", "bench"):
+        (root / folder).mkdir(parents=True)
+        for file in (PACKAGE / folder).glob("*.py"):
+            shutil.copy(file, root / folder / file.name)
+    return root
+
+
+def _hashes(package):
+    return {m: code_hash(method_sources(m), package) for m in ("input", "repacked", "CONFORMAL", "SSP", "SSPOP",
+                                                                  "ours", "ours_common", "paper",
+                                                                  "not_a_listed_method")}
+
+
+def _edit(file, old, new):
+    text = file.read_text()
+    assert old in text
+    file.write_text(text.replace(old, new, 1))
+
+
+def test_a_change_to_one_baseline_changes_only_its_key(package):
+    before = _hashes(package)
+    _edit(package / "bridge" / "baselines.py", "def ssp_uv(", "def ssp_uv(  # changed\n")
+    after = _hashes(package)
+    # a method not listed depends on any change
+    assert [m for m in before if before[m] != after[m]] == ["SSP", "not_a_listed_method"]
+
+
+def test_a_change_to_a_module_changes_the_methods_that_import_it(package):
+    before = _hashes(package)
+    (package / "core" / "trianglewise.py").write_text((package / "core" / "trianglewise.py").read_text() + "\n# x\n")
+    after = _hashes(package)
+    assert {m for m in before if before[m] != after[m]} == {"ours", "ours_common", "paper", "not_a_listed_method"}
+    (package / "core" / "overlap.py").write_text((package / "core" / "overlap.py").read_text() + "\n# x\n")
+    again = _hashes(package)
+    # the fold restore is post-processing every method but the input and its repacking gets
+    assert {m for m in after if after[m] != again[m]} == {"CONFORMAL", "SSP", "SSPOP", "ours", "ours_common",
+                                                           "paper", "not_a_listed_method"}
+
+
+def test_the_evaluation_is_part_of_every_key(package):
+    before = _hashes(package)
+    (package / "core" / "gmsd.py").write_text((package / "core" / "gmsd.py").read_text() + "\n# x\n")
+    after = _hashes(package)
+    assert all(before[m] != after[m] for m in before)
+
+
+def test_settings_that_a_method_ignores_do_not_change_its_key():
+    kw = dict(costs=[0.3, 0.1], screen=512, evaluations=100, epsilon=0.01)
+    ssp = method_settings("SSP", **kw)
+    assert ssp == method_settings("SSP", **{**kw, "epsilon": 0.02, "evaluations": 10, "costs": [0.1, 0.3]})
+    assert ssp != method_settings("SSP", **{**kw, "screen": 256})
+    assert method_settings("ours", **kw) != method_settings("ours", **{**kw, "epsilon": 0.02})
+    assert method_settings("ours_eps0.005", **kw)["epsilon"] == 0.005
+    assert method_settings("ours_common", **kw) != method_settings("ours", **kw)
+    key = method_key("SSP", model="m", settings=ssp, code="c")
+    assert key != method_key("SSPOP", model="m", settings=ssp, code="c")
+    assert key != method_key("SSP", model="n", settings=ssp, code="c")
+
+
+def _point(c, q):
+    return {"target_cost": c, "relative_cost": c, "q": q, "resolution": 64}
+
+
+def test_cache_round_trip_and_a_file_cut_off_is_measured_again(tmp_path):
+    model = tmp_path / "m" / "m.obj"
+    model.parent.mkdir()
+    model.write_text("v 0 0 0\n")
+    cache = ResultCache(tmp_path / "cache", costs=[0.3], screen=512, evaluations=100, epsilon=0.01)
+    assert cache.load(model, "ours") is None
+    result = {"screen_pixels": 512, "e_iso": 1.0, "points": [_point(0.3, 0.01)]}
+    uv = np.random.default_rng(0).random((4, 3, 2))
+    cache.save(model, "ours", result=result, times={"ours": 2.0, "triangle": 30.0}, uv=uv)
+    entry = cache.load(model, "ours")
+    assert entry["result"] == result and entry["times"]["triangle"] == 30.0
+    np.testing.assert_array_equal(entry["uv"], uv)
+    assert not list((tmp_path / "cache").rglob("*.part"))
+    # another texture is another model (the model's files are hashed once per run)
+    (model.parent / "m.png").write_bytes(b"png")
+    cache = ResultCache(tmp_path / "cache", costs=[0.3], screen=512, evaluations=100, epsilon=0.01)
+    assert cache.load(model, "ours") is None
+    cache.save(model, "SSP", result=result, times={"SSP": 1.0})
+    file = cache.file(model, "SSP")
+    file.write_text(file.read_text()[:20])
+    assert cache.load(model, "SSP") is None
+    assert ResultCache(None, costs=[0.3], screen=512, evaluations=100, epsilon=0.01).load(model, "SSP") is None
+
+
+def test_progress_prints_one_line_per_method_with_an_eta(capsys):
+    progress = compare.Progress(3, 4)
+    progress.model(1, 1, "m", 3, 1)
+    progress.method("m", "input", 0.0, "cached")
+    progress.method("m", "SSP", 10.0, "measured")
+    progress.method("m", "SSPOP", 20.0, "measured")
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 4 and lines[1].endswith("ETA unknown")
+    assert "1 to measure, ETA 15 s" in lines[3]
+
+
+@pytest.fixture
+def fake_measurements(monkeypatch):
+    """compare_model without renders: the evaluation returns fixed points and counts its calls."""
+    pytest.importorskip("bpy")
+    from perceptual_uv.bridge import evaluate
+
+    calls, state = [], {}
+
+    def evaluate_uv_map(objects, name, *, costs, **kw):
+        calls.append(name)
+        if name == "Repacked" and state.get("interrupt"):
+            raise KeyboardInterrupt
+        return {"screen_pixels": 512, "e_iso": 1.0, "points": [_point(c, 0.1 * c) for c in costs]}
+
+    monkeypatch.setattr(evaluate, "evaluate_uv_map", evaluate_uv_map)
+    monkeypatch.setattr(evaluate, "render_views", lambda *a, **kw: [np.zeros((8, 8, 4))])
+    monkeypatch.setattr(evaluate, "reference_resolution", lambda objects: 256)
+    monkeypatch.setattr(compare, "_plot", lambda *a, **kw: None)
+    monkeypatch.setattr(compare, "_crops", lambda *a, **kw: None)
+    return calls, state
+
+
+def test_a_rerun_measures_only_what_is_not_cached(spot_obj, tmp_path, fake_measurements):
+    calls, state = fake_measurements
+    out = tmp_path / "out"
+    out.mkdir()
+    kw = dict(costs=[0.3, 0.5], methods=["input", "repacked"], evaluations=100, screen=512, epsilon=0.01,
+              epsilons=[], workers=1, out=out)
+    cache = ResultCache(out / "cache", costs=[0.3, 0.5], screen=512, evaluations=100, epsilon=0.01)
+    # cut off while measuring the second method: the first one is on disk
+    state["interrupt"] = True
+    with pytest.raises(KeyboardInterrupt):
+        compare.compare_model(spot_obj, cache=cache, **kw)
+    assert calls == [calls[0], "Repacked"]
+    assert cache.load(spot_obj, "input") is not None and cache.load(spot_obj, "repacked") is None
+    state["interrupt"] = False
+    calls.clear()
+    compare.compare_model(spot_obj, cache=cache, **kw)
+    assert calls == ["Repacked"]
+    calls.clear()
+    compare.compare_model(spot_obj, cache=cache, **kw)
+    assert calls == []
+    table = json.loads((out / "spot_triangulated.json").read_text())["table"]
+    assert table["cached"] == ["input", "repacked"]
