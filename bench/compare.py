@@ -472,9 +472,12 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
             continue
         results[method] = evaluate_uv_map(objects, names[method], reference_uv=source, costs=costs,
                                           screen_pixels=screen, reference_views=reference)
-        post = {k: v for k, v in maps.reports.get(method, {}).items() if k.endswith("_charts")}
+        report = maps.reports.get(method, {})
+        post = {k: v for k, v in report.items() if k.endswith("_charts")}
         if post:
             results[method]["post"] = post
+        if "above_bound" in report:
+            results[method]["above_bound"] = report["above_bound"]
         print(f"{path.stem} {method}: " + ", ".join(f"c {p['relative_cost']:.3f} q {p['q']:.4g}"
                                                      for p in results[method]["points"]), flush=True)
         if cache is not None:
@@ -534,6 +537,11 @@ def _model_markdown(table, results, costs):
                                                    for c in costs) + f" | {res['e_iso'] / table['surface_area']:.4g} |")
     for method, reason in table.get("failures", {}).items():
         lines.append(f"| {method} | failed: {reason} |" + " |" * len(costs))
+    bound = {m: r["above_bound"] for m, r in results.items() if "above_bound" in r}
+    if bound:
+        lines += ["", f"Textured triangles with E > epsilon, at the mesh-wise fit's targets / after the fit (of "
+                      f"{next(iter(bound.values()))['textured_triangles']} textured): "
+                      + "; ".join(f"{m} {b['targets']:.1%} / {b['fit']:.1%}" for m, b in bound.items()) + "."]
     if table.get("reused"):
         lines += ["", f"Taken from the previous run of this model, not recomputed: {', '.join(table['reused'])}."]
     saving = table["pixel_saving"]

@@ -21,12 +21,12 @@ import numpy as np
 
 from ..core.chartfit import fit_charts
 from ..core.charts import uv_topology
-from ..core.loss import texture_luma
+from ..core.loss import above_bound, texture_luma
 from ..core.meshwise import orient_charts, solve_meshwise
 from ..core.overlap import FOLD_TOLERANCE, restore_folded_charts
 from ..core.ssp import solve_ssp, ssp_targets
 from ..core.trianglewise import (MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult, losses_at,
-                                 optimize_triangles)
+                                 losses_of, optimize_triangles)
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
@@ -274,6 +274,13 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         ``floor`` of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights`.
     fold_tolerance : float, optional
         Of :func:`core.overlap.restore_folded_charts`, for the default.
+
+    Returns
+    -------
+    dict
+        Times (s), the post-processing's counts, and ``above_bound``: the fractions of textured triangles whose
+        E (the project's views, :func:`core.trianglewise.losses_at`) exceeds the triangle-wise epsilon at the
+        fit's targets and after the fit (:func:`core.loss.above_bound`), measured after ``mesh`` was timed.
     """
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
@@ -283,11 +290,12 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     signal = ssp_targets(V, F, uv, texture)[0] if signal_weight > 0 else None
     params = triangles.fit_targets(uv, luma, min_texels=min_texels, signal_targets=signal,
                                    signal_weight=signal_weight)
+    fit_losses = None
     if (weights, formulation, rotation_scale) == ("perceptual", "perceptual", None):
         fit = fit_charts(F, uv, params, *triangles.fit_weights(floor=weight_floor),
                          measure=lambda new_uv: losses_at(V, F, uv, luma, new_uv, workers=workers),
                          texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance)
-        uv_fit, post = fit.uv, _post_counts(fit.restored, fit.angles)
+        uv_fit, post, fit_losses = fit.uv, _post_counts(fit.restored, fit.angles), fit.losses
     else:
         w_R, w_S = triangles.fit_weights(floor=weight_floor,
                                          rotation_scale=0.0 if rotation_scale is None else rotation_scale)
@@ -297,6 +305,10 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
                                                  w_R=triangles.fit_weights()[0], texel_scale=texture.shape[1::-1])
         post = _post_counts(restored, angles)
     t_mesh = time.perf_counter() - start
+    if fit_losses is None:
+        fit_losses = losses_at(V, F, uv, luma, uv_fit, workers=workers)
+    bound = above_bound(uv, luma, triangles.epsilon, targets=losses_of(V, F, uv, luma, params, workers=workers),
+                        fit=fit_losses)
     _write(objects, name, uv_fit)
     _pack(objects, name)
-    return {"mesh": t_mesh, "total": time.perf_counter() - start, **post}
+    return {"mesh": t_mesh, "total": time.perf_counter() - start, "above_bound": bound, **post}

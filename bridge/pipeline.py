@@ -93,21 +93,6 @@ def _source_image(objects):
     return image
 
 
-def _above_bound(uv, luma, target_losses, fit_losses, epsilon):
-    """Fractions of the textured triangles (:func:`core.loss.textured_triangles`) whose E exceeds epsilon: at the
-    targets the mesh-wise fit was given (after the texel floor and the signal-stretch blend) and after the fit.
-    Both are measured, so they show how far the floor and the blend move targets past the bound."""
-    from ..core.loss import textured_triangles
-
-    textured = textured_triangles(uv, luma)
-    count = int(np.count_nonzero(textured))
-    if count == 0:
-        return {"textured_triangles": 0, "targets": 0.0, "fit": 0.0}
-    return {"textured_triangles": count,
-            "targets": float(np.mean(~(target_losses[textured] <= epsilon))),
-            "fit": float(np.mean(~(fit_losses[textured] <= epsilon)))}
-
-
 def _notes_for_objects(objects):
     """What the user should know about the objects themselves (modifiers: the base mesh is optimized)."""
     notes = []
@@ -325,7 +310,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     translations and 90-degree rotations, resolution from the target cost, Eq. 20-21).
     """
     from ..core.chartfit import iter_fit_charts
-    from ..core.loss import texture_luma
+    from ..core.loss import above_bound, texture_luma
     from ..core.ssp import ssp_targets
     from ..core.trianglewise import iter_optimize_triangles, losses_at, losses_of
     from .bake import bake_base_color
@@ -449,8 +434,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),
             "restored_charts": int(restored.size),
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
-            "textured_above_bound": _above_bound(uv_in[faces], luma, target_losses, losses[faces],
-                                                 settings.epsilon),
+            "textured_above_bound": above_bound(uv_in[faces], luma, settings.epsilon, targets=target_losses,
+                                                fit=losses[faces]),
             "unevaluated_triangles": unevaluated,
             "optimized_triangles": int(len(faces)),
             "skipped_triangles": int(m - len(faces)),

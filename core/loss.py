@@ -53,7 +53,7 @@ from .gmsd import (GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, _pool
 from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
 from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
 
-__all__ = ["VIEW_FACES", "TriangleProblem", "TriangleBatch", "texture_luma", "textured_triangles",
+__all__ = ["VIEW_FACES", "TriangleProblem", "TriangleBatch", "texture_luma", "textured_triangles", "above_bound",
            "triangle_problem", "prepare_triangles", "render_reference"]
 
 #: Which faces a triangle's view draws: ``"window"`` (default) the one-ring and the faces connected to it that
@@ -80,6 +80,44 @@ def texture_luma(texture):
     if texture.shape[0] < 1 or texture.shape[1] < 1:
         raise ValueError(f"texture is empty: {texture.shape}")
     return np.ascontiguousarray(_to_luma(texture, channel_axis=-1 if texture.ndim == 3 else None))
+
+
+def above_bound(uv, luma, epsilon, **losses):
+    """Fractions of the textured triangles whose loss E exceeds epsilon, for each named set of losses.
+
+    Parameters
+    ----------
+    uv : (k, 3, 2) array_like of float64
+        Input per-corner UVs of the triangles the losses belong to.
+    luma : (h, w) or (h, w, c) array_like
+        Their texture.
+    epsilon : float
+        The bound of Eq. 7.
+    **losses : (k,) array_like of float
+        E per triangle, e.g. ``targets=`` at the mesh-wise fit's targets and ``fit=`` after the fit; NaN and
+        infinite values count as above the bound.
+
+    Returns
+    -------
+    dict
+        ``textured_triangles`` (how many of the k are textured, :func:`textured_triangles`) and, per keyword of
+        ``losses``, the fraction of those whose E is above ``epsilon`` (0 when none is textured).
+
+    Notes
+    -----
+    Untextured triangles are left out: their E is 0 under any deformation the box allows, so they would only
+    dilute the fraction. The fraction at the targets shows how far the texel floor and the signal-stretch blend
+    move the targets past the bound the triangle-wise search kept (Sec. 4.1).
+    """
+    textured = textured_triangles(uv, luma)
+    count = int(np.count_nonzero(textured))
+    out = {"textured_triangles": count}
+    for name, values in losses.items():
+        values = np.asarray(values, dtype=np.float64)
+        if values.shape != textured.shape:
+            raise ValueError(f"{name} must have a loss per triangle, shape {textured.shape}, got {values.shape}")
+        out[name] = float(np.mean(~(values[textured] <= epsilon))) if count else 0.0
+    return out
 
 
 def textured_triangles(uv, luma):

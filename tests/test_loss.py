@@ -286,3 +286,22 @@ def test_a_sliver_sees_the_panel_around_it():
     assert len(problem.pixel) / problem.screen_pixels ** 2 > 0.95
     # Noise at half the texels per side loses most of its detail: far above epsilon = 0.01.
     assert problem.evaluate([0.0, 0.5, 0.5, 0.0])[0] > 0.05
+
+
+def test_above_bound_counts_textured_triangles_only_and_non_finite_losses_as_above():
+    """A 16 x 16 texture, flat on its left half and a checkerboard on its right half: two triangles deep in the
+    flat half are untextured whatever their loss; of the three on the checkerboard, 0.02 and NaN exceed 0.01
+    and 0.005 does not, so 2 of 3 (by hand)."""
+    from perceptual_uv.core.loss import above_bound
+
+    texture = np.full((16, 16), 0.5)
+    texture[:, 8:] = (np.indices((16, 8)).sum(axis=0) % 2).astype(float)
+    flat = np.array([[0.1, 0.1], [0.3, 0.1], [0.1, 0.3]])
+    checker = flat + [0.55, 0.4]
+    uv = np.stack([flat, flat + [0.0, 0.5], checker, checker + [0.1, 0.0], checker + [0.0, 0.2]])
+    losses = np.array([0.5, 0.0, 0.02, np.nan, 0.005])
+    assert above_bound(uv, texture, 0.01, fit=losses, targets=np.zeros(5)) == {
+        "textured_triangles": 3, "fit": pytest.approx(2 / 3), "targets": 0.0}
+    assert above_bound(uv[:2], texture, 0.01, fit=losses[:2]) == {"textured_triangles": 0, "fit": 0.0}
+    with pytest.raises(ValueError, match="fit must have a loss per triangle"):
+        above_bound(uv, texture, 0.01, fit=losses[:4])

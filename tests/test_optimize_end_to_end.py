@@ -206,6 +206,15 @@ def test_report_fields(registered, spot_obj, tmp_path):
     assert overlaps["within_charts"] <= before.within_charts
     assert report["restored_charts"] >= 0
     assert 0 <= report["triangles_within_bound"] <= 1
+    # issue 22: the bound measured on the textured triangles, at the fit's targets and after the fit; every
+    # textured triangle above it is an optimized triangle above it
+    bound = report["textured_above_bound"]
+    assert set(bound) == {"textured_triangles", "targets", "fit"}
+    assert 0 <= bound["textured_triangles"] <= report["optimized_triangles"]
+    assert 0 <= bound["targets"] <= 1 and 0 <= bound["fit"] <= 1
+    above = round(bound["fit"] * bound["textured_triangles"])
+    assert above <= round((1 - report["triangles_within_bound"]) * report["optimized_triangles"])
+    assert report["unevaluated_triangles"] == 0
     assert abs(report["relative_cost"] - 0.3) <= 0.015
     # the fraction of the image the packed islands cover: their UV area, read back from the new map
     new = read_mesh(obj, uv_name=report["uv_map"]).uv
