@@ -25,8 +25,8 @@ from ..core.loss import above_bound, texture_luma
 from ..core.meshwise import orient_charts, solve_meshwise
 from ..core.overlap import FOLD_TOLERANCE, restore_folded_charts
 from ..core.ssp import solve_ssp, ssp_targets
-from ..core.trianglewise import (SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult, losses_at, losses_of,
-                                 optimize_triangles)
+from ..core.trianglewise import (MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult, losses_at,
+                                 losses_of, optimize_triangles)
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
@@ -245,7 +245,7 @@ def _triangle_cache_key(V, F, uv, luma, **settings):
 
 
 def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual",
-                  rotation_scale=None, workers=1, min_texels=0.0, signal_weight=SIGNAL_WEIGHT,
+                  rotation_scale=None, workers=1, min_texels=MIN_TEXELS, signal_weight=SIGNAL_WEIGHT,
                   weight_floor=STRETCH_WEIGHT_FLOOR, fold_tolerance=FOLD_TOLERANCE):
     """Our mesh-wise stage on triangle-wise results ``triangles``, or one of the Fig. 17 ablations, packed.
 
@@ -268,8 +268,8 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     workers : int, optional
         Processes measuring E for the default (``core.trianglewise.losses_at``; 0: one per core).
     min_texels, signal_weight : float, optional
-        Of :meth:`~core.trianglewise.TrianglewiseResult.fit_targets`: the texel floor (off by default) and the
-        signal-stretch blend (0 turns it off).
+        Of :meth:`~core.trianglewise.TrianglewiseResult.fit_targets` (the texel floor and the signal-stretch
+        blend; 0 turns each off).
     weight_floor : float, optional
         ``floor`` of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights`.
     fold_tolerance : float, optional
