@@ -106,8 +106,9 @@ def above_bound(uv, luma, epsilon, **losses):
     Notes
     -----
     Untextured triangles are left out: their E is 0 under any deformation the box allows, so they would only
-    dilute the fraction. The fraction at the targets shows how far the texel floor and the signal-stretch blend
-    move the targets past the bound the triangle-wise search kept (Sec. 4.1).
+    dilute the fraction. The fraction at the targets shows how far the post-processing of the targets (the
+    signal-stretch blend above all, then the texel floor) moves them past the bound the triangle-wise search
+    kept (Sec. 4.1); the fraction after the fit, how far the fit moves the triangles off their targets.
     """
     textured = textured_triangles(uv, luma)
     count = int(np.count_nonzero(textured))
