@@ -103,6 +103,7 @@ __all__ = ["WorkerDiedError", "LossNotEvaluableError", "LAMBDA_MIN", "MAX_SCREEN
 
 LAMBDA_MIN = 0.1
 _IDENTITY = np.array([0.0, 1.0, 1.0, 0.0])
+_IDENTITY.setflags(write=False)  # shared by every call: a write would change every later triangle's start
 MAX_SCREEN_PIXELS = 256
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
