@@ -1,0 +1,236 @@
+"""Benchmark of the whole pipeline: every stage's time, ms per face, the longest step, peak memory.
+
+Usage::
+
+    .venv/bin/python bench/pipeline.py --models ../shared/models/spot ../shared/models/bob \
+        [--against REV] [--workers 2] [--iterations 100] [--json OUT.json]
+
+Each model runs in a fresh process (``--models`` takes model folders or files) at the default settings, driving
+the pipeline generator the way the modal operator does: one ``next`` per step. Printed per model and revision:
+the stage times of the report (``read`` is everything before the triangle-wise stage), the triangle-wise stage
+in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
+freezes for as long as one step takes), and the peak resident memory of the run's whole process tree (the
+pipeline process and its worker processes, sampled every 0.1 s).
+
+With ``--against REV`` the same models also run on another git revision of this repository, checked out once
+into a worktree under the system's temporary folder, in the same session, alternating revision by revision per
+model, and the ratios ``this / REV`` are printed: these machines are noisy, only ratios measured in one run
+count. Each revision first optimizes the bundled spot model once at 10 evaluations per face, so that numba's
+compile cache is warm for both and no measured run pays for compilation.
+"""
+import argparse
+import hashlib
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+REPO = pathlib.Path(__file__).resolve().parent.parent
+MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj")
+WARMUP_MODEL = REPO / "tests" / "data" / "spot" / "spot_triangulated.obj"
+STAGES = ("read", "triangle", "mesh", "pack", "bake", "total")
+
+
+def model_file(path):
+    """The model file ``path`` names: itself, or the first model file (by name) in the folder."""
+    path = pathlib.Path(path)
+    if path.is_file():
+        return path
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in MODEL_SUFFIXES) if path.is_dir() else []
+    if not files:
+        raise SystemExit(f"no model file ({', '.join(MODEL_SUFFIXES)}) in {path}")
+    return files[0]
+
+
+def run_pipeline(path, settings_options):
+    """Optimize ``path`` in this process, driving the generator step by step; a dict of measurements.
+
+    Run inside the child process, with the package of the revision under test on ``sys.path``.
+    """
+    import bpy
+
+    from perceptual_uv.bridge.batch import textured_objects
+    from perceptual_uv.bridge.mesh_io import import_model
+    from perceptual_uv.bridge.pipeline import optimize_objects
+    from perceptual_uv.core.settings import OptimizeSettings
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    started = time.perf_counter()
+    import_model(path)
+    objects = textured_objects()
+    imported = time.perf_counter() - started
+    output_dir = tempfile.mkdtemp(prefix="perceptual_uv-bench-")
+    pipeline = optimize_objects(objects, OptimizeSettings(**settings_options), output_dir=output_dir)
+    longest, longest_stage, steps = 0.0, None, 0
+    step_started, stage = time.perf_counter(), "start"
+    while True:
+        try:
+            progress = next(pipeline)
+        except StopIteration as finished:
+            result = finished.value
+            elapsed = time.perf_counter() - step_started
+            if elapsed > longest:
+                longest, longest_stage = elapsed, stage
+            break
+        elapsed = time.perf_counter() - step_started
+        steps += 1
+        if elapsed > longest:
+            longest, longest_stage = elapsed, stage
+        stage = progress.stage
+        step_started = time.perf_counter()
+    report = result.report
+    times = dict(report["times_s"])
+    times["read"] = times["total"] - sum(times.get(name, 0.0) for name in ("triangle", "mesh", "pack", "bake"))
+    optimized = report.get("optimized_triangles", report["faces"])
+    return {"model": str(path), "faces": report["faces"], "optimized_faces": optimized,
+            "import_s": imported, "times_s": times,
+            "triangle_ms_per_face": 1000 * times["triangle"] / max(optimized, 1),
+            "longest_step_s": longest, "longest_step_stage": longest_stage, "steps": steps,
+            "resolution": report["resolution"], "relative_cost": report["relative_cost"]}
+
+
+def _children():
+    """Parent pid -> child pids, from /proc."""
+    tree = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        tree.setdefault(int(fields[1]), []).append(int(entry))
+    return tree
+
+
+def tree_rss_bytes(pid):
+    """Resident memory of ``pid`` and all its descendants, in bytes (0 once it is gone)."""
+    tree, total, stack = _children(), 0, [pid]
+    page = os.sysconf("SC_PAGE_SIZE")
+    while stack:
+        current = stack.pop()
+        try:
+            with open(f"/proc/{current}/statm") as statm:
+                total += int(statm.read().split()[1]) * page
+        except OSError:
+            pass
+        stack.extend(tree.get(current, []))
+    return total
+
+
+def measure(tree, path, settings_options):
+    """Run ``path`` in a child process on the package at ``tree``; its measurements and peak tree memory."""
+    package_root = pathlib.Path(tempfile.gettempdir()) / f"perceptual_uv-bench-path-{hashlib.sha1(str(tree).encode()).hexdigest()[:12]}"
+    package_root.mkdir(exist_ok=True)
+    link = package_root / "perceptual_uv"
+    if not link.exists():
+        link.symlink_to(tree, target_is_directory=True)
+    env = dict(os.environ, PYTHONPATH=str(package_root))
+    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as handle:
+        out = pathlib.Path(handle.name)
+    command = [sys.executable, str(pathlib.Path(__file__).resolve()), "--run-one", str(path), "--json", str(out),
+               "--settings", json.dumps(settings_options)]
+    child = subprocess.Popen(command, env=env, cwd=str(tree), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                             text=True)
+    peak = 0
+    while child.poll() is None:
+        peak = max(peak, tree_rss_bytes(child.pid))
+        time.sleep(0.1)
+    errors = child.stderr.read()
+    if child.returncode != 0:
+        raise SystemExit(f"{path} on {tree} failed (exit {child.returncode}):\n{errors[-2000:]}")
+    result = json.loads(out.read_text())
+    out.unlink()
+    result["peak_rss_gib"] = peak / 2 ** 30
+    return result
+
+
+def worktree(revision):
+    """A worktree of ``revision`` (a commit, kept under the temporary folder and reused across runs)."""
+    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--verify", f"{revision}^{{commit}}"],
+                            capture_output=True, text=True)
+    if commit.returncode != 0:
+        raise SystemExit(f"--against {revision}: not a revision of {REPO}")
+    commit = commit.stdout.strip()
+    folder = pathlib.Path(tempfile.gettempdir()) / f"perceptual_uv-bench-{commit[:12]}"
+    if not (folder / "__init__.py").exists():
+        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "--force", str(folder), commit],
+                       check=True, capture_output=True)
+    return folder, commit[:12]
+
+
+def _row(label, result):
+    times = result["times_s"]
+    stages = " ".join(f"{name} {times.get(name, float('nan')):7.1f}" for name in STAGES)
+    return (f"  {label:<14} {stages}  {result['triangle_ms_per_face']:7.1f} ms/face  longest step "
+            f"{result['longest_step_s']:6.2f} s ({result['longest_step_stage']})  peak {result['peak_rss_gib']:.2f} GiB")
+
+
+def _ratio_row(result, reference):
+    ratios = []
+    for name in STAGES:
+        ours, theirs = result["times_s"].get(name), reference["times_s"].get(name)
+        ratios.append(f"{name} {ours / theirs:7.2f}" if ours is not None and theirs else f"{name}     n/a")
+    ms = result["triangle_ms_per_face"] / max(reference["triangle_ms_per_face"], 1e-9)
+    step = result["longest_step_s"] / max(reference["longest_step_s"], 1e-9)
+    memory = result["peak_rss_gib"] / max(reference["peak_rss_gib"], 1e-9)
+    return f"  {'ratio':<14} {' '.join(ratios)}  {ms:7.2f} ms/face  longest step {step:6.2f}    peak {memory:.2f}"
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--models", nargs="+", help="model folders or files")
+    parser.add_argument("--against", help="another git revision to measure in the same run")
+    parser.add_argument("--workers", type=int, default=0, help="worker processes (0: one per core)")
+    parser.add_argument("--iterations", type=int, default=None, help="evaluations per face (default: the default)")
+    parser.add_argument("--no-warmup", action="store_true", help="skip the compile warm-up run per revision")
+    parser.add_argument("--json", type=pathlib.Path, help="write all measurements here")
+    parser.add_argument("--run-one", help=argparse.SUPPRESS)
+    parser.add_argument("--settings", default="{}", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+
+    if args.run_one:  # the child process
+        result = run_pipeline(args.run_one, json.loads(args.settings))
+        args.json.write_text(json.dumps(result))
+        return 0
+    if not args.models:
+        parser.error("--models is required")
+
+    settings = {"workers": args.workers}
+    if args.iterations is not None:
+        settings["iterations"] = args.iterations
+    models = []
+    for path in args.models:
+        if not pathlib.Path(path).exists():
+            print(f"skipping {path}: not found", file=sys.stderr)
+            continue
+        models.append(model_file(path))
+    trees = [("this", REPO)]
+    if args.against:
+        folder, commit = worktree(args.against)
+        trees.append((commit, folder))
+    if not args.no_warmup:
+        for label, tree in trees:
+            print(f"warm-up on {label}", flush=True)
+            measure(tree, WARMUP_MODEL, dict(settings, iterations=10))
+    results = {}
+    for path in models:
+        print(f"{path.parent.name}/{path.name}", flush=True)
+        for label, tree in trees:
+            result = measure(tree, path, settings)
+            results.setdefault(path.parent.name, {})[label] = result
+            print(_row(label, result), flush=True)
+        if args.against:
+            print(_ratio_row(results[path.parent.name]["this"], results[path.parent.name][trees[1][0]]), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps({"settings": settings, "against": args.against, "results": results},
+                                        indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
