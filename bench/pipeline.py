@@ -62,8 +62,8 @@ def run_pipeline(path, settings_options):
     import_model(path)
     objects = textured_objects()
     imported = time.perf_counter() - started
-    output_dir = tempfile.mkdtemp(prefix="perceptual_uv-bench-")
-    pipeline = optimize_objects(objects, OptimizeSettings(**settings_options), output_dir=output_dir)
+    output_dir = tempfile.TemporaryDirectory(prefix="perceptual_uv-bench-")
+    pipeline = optimize_objects(objects, OptimizeSettings(**settings_options), output_dir=output_dir.name)
     longest, longest_stage, steps = 0.0, None, 0
     step_started, stage = time.perf_counter(), "start"
     while True:
@@ -81,6 +81,7 @@ def run_pipeline(path, settings_options):
             longest, longest_stage = elapsed, stage
         stage = progress.stage
         step_started = time.perf_counter()
+    output_dir.cleanup()
     report = result.report
     times = dict(report["times_s"])
     times["read"] = times["total"] - sum(times.get(name, 0.0) for name in ("triangle", "mesh", "pack", "bake"))

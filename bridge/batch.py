@@ -10,10 +10,18 @@ import os
 import pathlib
 import sys
 import tempfile
+import threading
+import time
 
 import bpy
 
+from ..core.progress import format_seconds
+
 __all__ = ["textured_objects", "optimize_file", "evaluate_file"]
+
+
+# Longest time the CLI stays silent during a run.
+PROGRESS_INTERVAL_S = 5.0
 
 
 def _log(message):
@@ -53,6 +61,52 @@ def textured_objects(object_name=None):
         listing = "; ".join(f"{image}: {', '.join(o.name for o in objs)}" for image, objs in sorted(groups.items()))
         raise ValueError(f"the meshes use {len(groups)} different textures ({listing}); pick one with --object")
     return next(iter(groups.values()))
+
+
+class _ProgressLines:
+    """Progress lines on stderr: at every stage change and end, and at least every ``interval`` seconds.
+
+    A thread prints the latest progress when the pipeline has not yielded for ``interval`` seconds (one long
+    step, such as packing or the bake), adding how long that step has run, so a pipeline log never goes quiet.
+    """
+
+    def __init__(self, interval=PROGRESS_INTERVAL_S):
+        self.interval = interval
+        self._latest = None
+        self._stage = None
+        self._printed = self._changed = time.monotonic()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._heartbeat, name="perceptual_uv-progress", daemon=True)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+
+    def update(self, progress):
+        with self._lock:
+            now = time.monotonic()
+            self._latest, self._changed = progress, now
+            if (progress.stage != self._stage or progress.done == progress.total
+                    or now - self._printed >= self.interval):
+                self._stage = progress.stage
+                self._print(progress, now)
+
+    def _print(self, progress, now, waiting=None):
+        suffix = f" (this step running for {format_seconds(waiting)})" if waiting is not None else ""
+        _log(f"[{progress.stage}] {progress.line()}{suffix}")
+        self._printed = now
+
+    def _heartbeat(self):
+        while not self._stop.wait(min(1.0, self.interval)):
+            with self._lock:
+                now = time.monotonic()
+                if self._latest is not None and now - self._printed >= self.interval:
+                    self._print(self._latest, now, waiting=now - self._changed)
 
 
 def _writable_folder(folder):
@@ -108,13 +162,11 @@ def optimize_file(args):
     import_model(args.input)
     objects = textured_objects(args.object)
     pipeline = optimize_objects(objects, args.settings, source_uv=args.uv, output_dir=str(images_dir))
-    last_stage = None
     try:
-        while True:
-            progress: Progress = next(pipeline)
-            if progress.stage != last_stage or progress.done == progress.total:
-                _log(f"[{progress.stage}] {progress.message}")
-                last_stage = progress.stage
+        with _ProgressLines() as lines:
+            while True:
+                progress: Progress = next(pipeline)
+                lines.update(progress)
     except StopIteration as finished:
         result = finished.value
     except BaseException:

@@ -16,10 +16,11 @@ import bpy
 import numpy as np
 
 from ..core import cost as texel_cost
+from ..core.progress import RunProgress, format_seconds
 from .material import base_color_image_node
 
-__all__ = ["Progress", "PipelineResult", "optimize_objects", "run_to_end", "target_problem", "loss_ramp",
-           "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE"]
+__all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "run_to_end", "target_problem",
+           "loss_ramp", "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE"]
 
 LOSS_ATTRIBUTE = "perceptual_loss"
 LOSS_COLOR_ATTRIBUTE = "perceptual_loss_color"
@@ -27,12 +28,27 @@ LOSS_COLOR_ATTRIBUTE = "perceptual_loss_color"
 
 @dataclasses.dataclass(frozen=True)
 class Progress:
-    """One step of a run: ``stage`` name, ``done`` of ``total`` units of it, and a line for the status bar."""
+    """One step of a run: ``stage`` name, ``done`` of ``total`` units of it, and a line for the status bar.
+
+    ``fraction`` is the whole run's fraction done and ``seconds_left`` its estimated time left (None until a
+    hundredth of the run is done), from :data:`STAGE_SHARES` (``core.progress.RunProgress``).
+    """
 
     stage: str
     done: int
     total: int
     message: str
+    fraction: float = 0.0
+    seconds_left: float | None = None
+
+    def line(self):
+        """``message`` followed by the whole run's progress: "...: 120/5856 · 12 % of the run, 4 min 05 s left"."""
+        left = f", {format_seconds(self.seconds_left)} left" if self.seconds_left is not None else ""
+        return f"{self.message} · {self.fraction:.0%} of the run{left}"
+
+
+# Expected share of a run's time per stage, in the order they run, at the default settings (bench/pipeline.py).
+STAGE_SHARES = {"read": 0.02, "triangle": 0.70, "mesh": 0.15, "pack": 0.06, "bake": 0.06, "loss": 0.01, "done": 0.0}
 
 
 @dataclasses.dataclass
@@ -337,8 +353,14 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     started = time.perf_counter()
     times = {}
     created = _Created()
+    run = RunProgress(STAGE_SHARES)
+
+    def step(stage, done, total, message):
+        fraction, seconds_left = run.update(stage, done, total)
+        return Progress(stage, done, total, message, fraction, seconds_left)
+
     try:
-        yield Progress("read", 0, 1, "Reading mesh and texture")
+        yield step("read", 0, 1, "Reading mesh and texture")
         image, validated, notes = _read_objects(objects, source_uv, settings)
         mesh, texture, faces = validated.mesh, validated.texture, validated.faces
         V, F, uv_in = mesh.V, mesh.F, mesh.uv
@@ -352,7 +374,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                         evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
                                         max_screen_pixels=settings.max_screen_pixels,
                                         workers=settings.workers, seed=settings.seed, faces=faces)
-        triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock)
+        triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock, step)
         times["triangle"] = time.perf_counter() - clock
         unevaluated = int(np.count_nonzero(triangles.unevaluated))
         if unevaluated:
@@ -360,12 +382,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                          "their input shape and size")
 
         clock = time.perf_counter()
-        yield Progress("mesh", 0, 1, "Measuring the texture's signal stretch")
+        yield step("mesh", 0, 1, "Measuring the texture's signal stretch")
         signal, _, _ = ssp_targets(V, F, uv_in, texture)
         # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
         targets = triangles.fit_targets(uv_in, luma, signal_targets=signal)
         params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
-        yield Progress("mesh", 0, 1, "Measuring the loss of the fit's targets")
+        yield step("mesh", 0, 1, "Measuring the loss of the fit's targets")
         target_losses = losses_of(V, F, uv_in, luma, targets, screen_pixels=settings.screen_pixels,
                                   max_screen_pixels=settings.max_screen_pixels, faces=faces,
                                   workers=settings.workers)
@@ -378,14 +400,14 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             return losses
 
         stage = iter_fit_charts(F, uv_in, params, w_R, w_S, measure=measure, texel_scale=(width, height))
-        meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit, with and without rotation targets", clock)
+        meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit, with and without rotation targets", clock, step)
         uv_fit, restored, losses = meshwise.uv, meshwise.restored, meshwise.losses
         if restored.size:
             notes.append(f"{restored.size} UV island(s) folded over themselves in the mesh-wise fit (it is locally "
                          "injective only) and keep their input layout, scaled to their new size")
         times["mesh"] = time.perf_counter() - clock
 
-        yield Progress("pack", 0, 1, "Packing islands")
+        yield step("pack", 0, 1, "Packing islands")
         clock = time.perf_counter()
         uv_name = _unique_uv_name(objects, settings.uv_map_name)
         for obj, rows in zip(objects, per_object):
@@ -400,7 +422,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                          "is wide sets the packing scale; a seam across it lets the islands pack tighter")
         times["pack"] = time.perf_counter() - clock
 
-        yield Progress("bake", 0, 1, f"Baking a {resolution} x {resolution} image")
+        yield step("bake", 0, 1, f"Baking a {resolution} x {resolution} image")
         clock = time.perf_counter()
         image_name = settings.image_name or f"{os.path.splitext(image.name)[0]}_perceptual"
         new_image = bake_base_color(objects, source_uv=source_uv, target_uv=uv_name, resolution=resolution,
@@ -408,7 +430,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         created.images.append(new_image)
         times["bake"] = time.perf_counter() - clock
 
-        yield Progress("loss", 0, 1, "Writing the loss per triangle")
+        yield step("loss", 0, 1, "Writing the loss per triangle")
         for obj, rows in zip(objects, per_object):
             _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
 
@@ -449,7 +471,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "notes": shared_notes + notes,
             "warnings": [save_warning] if save_warning else [],
         }
-        yield Progress("done", 1, 1, "Done")
+        yield step("done", 1, 1, "Done")
         return PipelineResult(uv_map=uv_name, image=new_image, materials=materials, report=report)
     except BaseException:
         created.remove_all()
@@ -465,16 +487,16 @@ def _overlap_report(uv, face_chart):
             "between_charts": int(overlaps.between_charts)}
 
 
-def _relay(stage, name, label, started):
-    """Re-yield a core stage's (done, total) progress as Progress with a time-left estimate."""
+def _relay(stage, name, label, started, step):
+    """Re-yield a core stage's (done, total) progress through ``step`` with the stage's own time left."""
     while True:
         try:
             done, total = next(stage)
         except StopIteration as finished:
             return finished.value
         elapsed = time.perf_counter() - started
-        left = f", about {elapsed / done * (total - done):.0f} s left" if done else ""
-        yield Progress(name, done, total, f"{label}: {done}/{total}{left}")
+        left = f", {format_seconds(elapsed / done * (total - done))} left in this stage" if done else ""
+        yield step(name, done, total, f"{label}: {done}/{total}{left}")
 
 
 # Largest island margin as a fraction of the image: on tiny images (a few pixels) the margin in pixels cannot be

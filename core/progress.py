@@ -1,6 +1,7 @@
-"""Running a stage written as a generator (yields ``(done, total)``, returns its result) to the end."""
+"""Progress of a run: driving a stage written as a generator, and the whole run's fraction and time left."""
+import time
 
-__all__ = ["run_generator"]
+__all__ = ["run_generator", "RunProgress", "format_seconds"]
 
 
 def run_generator(generator, progress=None):
@@ -20,3 +21,58 @@ def run_generator(generator, progress=None):
             return finished.value
         if progress is not None:
             progress(*item)
+
+
+class RunProgress:
+    """The fraction of a whole run done and the time left, from its stages' expected shares of the time.
+
+    A run is a sequence of stages; stage ``k`` is expected to take ``shares[k]`` of the whole run. The fraction
+    done when ``done`` of ``total`` units of a stage are finished is the sum of the earlier stages' shares plus
+    that stage's share times ``done / total``; the time left is the time so far scaled by the fraction left over
+    the fraction done. Stages missing from ``shares`` (and a share of 0) count as instantaneous.
+
+    Parameters
+    ----------
+    shares : dict of str to float
+        Stage name -> expected share of the run's time, in the order the stages run (normalized to sum 1).
+    clock : callable, optional
+        Seconds as a float; ``time.perf_counter`` by default (tests pass their own).
+    """
+
+    def __init__(self, shares, *, clock=time.perf_counter):
+        total = sum(shares.values())
+        if not shares or total <= 0 or any(share < 0 for share in shares.values()):
+            raise ValueError(f"stage shares must be non-negative with a positive sum, got {shares}")
+        self._start = {}
+        before = 0.0
+        for stage, share in shares.items():
+            self._start[stage] = (before / total, share / total)
+            before += share
+        self._clock = clock
+        self._started = clock()
+        self._fraction = 0.0
+
+    def update(self, stage, done, total):
+        """Record ``done`` of ``total`` units of ``stage``; return ``(fraction, seconds_left)``.
+
+        The fraction never goes back (a stage that restarts its count does not move the bar back). Seconds left
+        are None until a hundredth of the run is done, when the estimate would be noise.
+        """
+        if stage in self._start:
+            start, share = self._start[stage]
+            fraction = start + share * min(max(done / total if total else 1.0, 0.0), 1.0)
+            self._fraction = max(self._fraction, fraction)
+        elapsed = self._clock() - self._started
+        if self._fraction < 0.01:
+            return self._fraction, None
+        return self._fraction, elapsed * (1.0 - self._fraction) / self._fraction
+
+
+def format_seconds(seconds):
+    """``seconds`` as a short duration for a progress line: "45 s", "3 min 05 s", "1 h 02 min"."""
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"

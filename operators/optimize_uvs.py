@@ -114,9 +114,8 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
         try:
             while time.perf_counter() < deadline:
                 progress = next(self._pipeline)
-                stage_fraction = progress.done / max(progress.total, 1)
-                context.window_manager.progress_update(int(1000 * stage_fraction))
-                context.workspace.status_text_set(f"Optimize UVs: {progress.message} (Esc to cancel)")
+                context.window_manager.progress_update(int(1000 * progress.fraction))
+                context.workspace.status_text_set(f"Optimize UVs: {progress.line()} (Esc to cancel)")
         except StopIteration as finished:
             self._end_modal(context)
             self._finish(context, finished.value)

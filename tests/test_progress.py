@@ -1,0 +1,76 @@
+"""Whole-run progress: fraction from stage shares, time left, and the CLI's progress lines."""
+import pytest
+
+from perceptual_uv.core.progress import RunProgress, format_seconds
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+def test_fraction_adds_earlier_shares_and_the_current_stage_part():
+    clock = FakeClock()
+    run = RunProgress({"read": 1, "triangle": 6, "mesh": 3}, clock=clock)
+    assert run.update("read", 0, 1) == (0.0, None)
+    clock.now += 10
+    fraction, left = run.update("triangle", 3, 6)  # 0.1 + 0.6 * 0.5 = 0.4 after 10 s
+    assert fraction == pytest.approx(0.4)
+    assert left == pytest.approx(10 * 0.6 / 0.4)  # 15 s
+    clock.now += 20
+    fraction, left = run.update("mesh", 1, 1)
+    assert fraction == pytest.approx(1.0) and left == pytest.approx(0.0)
+
+
+def test_fraction_never_goes_back_and_unknown_stages_keep_it():
+    clock = FakeClock()
+    run = RunProgress({"a": 1, "b": 1}, clock=clock)
+    clock.now += 4
+    assert run.update("b", 1, 2)[0] == pytest.approx(0.75)
+    assert run.update("b", 0, 5)[0] == pytest.approx(0.75)  # a stage restarting its count
+    assert run.update("a", 1, 1)[0] == pytest.approx(0.75)
+    assert run.update("elsewhere", 0, 1)[0] == pytest.approx(0.75)
+    assert run.update("b", 2, 0)[0] == pytest.approx(1.0)  # no units: the stage counts as done
+
+
+def test_no_time_left_before_a_hundredth_of_the_run():
+    clock = FakeClock()
+    run = RunProgress({"a": 1}, clock=clock)
+    clock.now += 1
+    assert run.update("a", 1, 200)[1] is None
+    assert run.update("a", 2, 200)[1] == pytest.approx(1 * 0.99 / 0.01)
+
+
+def test_bad_shares_are_refused():
+    for shares in ({}, {"a": 0}, {"a": -1, "b": 2}):
+        with pytest.raises(ValueError):
+            RunProgress(shares)
+
+
+@pytest.mark.parametrize("seconds, text", [(0.4, "0 s"), (59.4, "59 s"), (65, "1 min 05 s"), (3600 + 125, "1 h 02 min")])
+def test_format_seconds(seconds, text):
+    assert format_seconds(seconds) == text
+
+
+def test_cli_lines_at_stage_changes_and_during_a_long_step(capsys):
+    import time
+
+    from perceptual_uv.bridge.batch import _ProgressLines
+    from perceptual_uv.bridge.pipeline import Progress
+
+    with _ProgressLines(interval=0.2) as lines:
+        lines.update(Progress("triangle", 1, 100, "Triangle-wise optimization: 1/100", 0.05, 200.0))
+        for done in range(2, 50):  # fast steps within one stage: no new line before the interval
+            lines.update(Progress("triangle", done, 100, f"Triangle-wise optimization: {done}/100", 0.05, 200.0))
+        lines.update(Progress("pack", 0, 1, "Packing islands", 0.8, 30.0))
+        time.sleep(0.75)  # one long step: the thread keeps printing
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "[triangle] Triangle-wise optimization: 1/100 · 5% of the run, 3 min 20 s left"
+    assert err[1] == "[pack] Packing islands · 80% of the run, 30 s left"
+    heartbeat = err[2:]
+    assert 2 <= len(heartbeat) <= 4
+    assert all(line.startswith("[pack] Packing islands · 80% of the run, 30 s left (this step running for ")
+               for line in heartbeat)
