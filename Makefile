@@ -8,7 +8,11 @@ PYTEST_ARGS ?=
 
 .PHONY: setup system-libs test test-all demo extension bench clean
 
-setup: system-libs $(STAMP) $(SITE)/perceptual_uv_repo.pth
+setup: system-libs $(STAMP) $(SITE)/perceptual_uv_repo.pth $(VENV)/node/node_modules/gltf-validator
+
+# The Khronos glTF validator for the .glb tests (node + npm); without them those tests skip and say why.
+$(VENV)/node/node_modules/gltf-validator: $(STAMP)
+	-@$(PY) tests/gltf_validate.py --install
 
 system-libs:
 	@bash tools/system_libs.sh

@@ -134,22 +134,6 @@ def _publish(path):
             temporary.unlink()
 
 
-def _export_glb(objects, result, path):
-    """Export ``objects`` with the new UV map as their only texture coordinates and the new image."""
-    for obj in objects:
-        layers = obj.data.uv_layers
-        # This batch session's copy of the data only; the input file is untouched. Removing a layer
-        # invalidates the others' Python references, so go by name.
-        for name in [layer.name for layer in layers if layer.name != result.uv_map]:
-            layers.remove(layers[name])
-        layers[result.uv_map].active = True
-        layers[result.uv_map].active_render = True
-    for obj in bpy.context.view_layer.objects:
-        obj.select_set(obj in objects)
-    bpy.ops.export_scene.gltf(filepath=str(path), export_format="GLB", use_selection=True,
-                              export_image_format="AUTO")
-
-
 def optimize_file(args):
     """``optimize``: see DESIGN's CLI contract; ``args`` comes from :func:`perceptual_uv.cli.parse_args`."""
     from .mesh_io import import_model
@@ -182,7 +166,9 @@ def optimize_file(args):
         with _publish(out) as temporary:
             try:
                 if out.suffix.lower() == ".glb":
-                    _export_glb(objects, result, temporary)
+                    from .gltf_export import export_glb
+
+                    export_glb(objects, result, temporary)
                 else:
                     bpy.ops.wm.save_as_mainfile(filepath=str(temporary), copy=True, relative_remap=True)
             except RuntimeError as error:  # Blender's save and export report I/O failures this way

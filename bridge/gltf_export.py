@@ -1,0 +1,122 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Write a finished run as a .glb: the whole scene of the input, with the optimized meshes on their new UV map.
+
+What the file keeps: every object of the scene (armatures and their skins, other meshes, empties, lights and
+cameras), the animations, joints and weights, shape keys, and the input's own vertex colours. On the optimized
+meshes, TEXCOORD_0 is the new UV map and the only texture coordinates, the materials are the run's copies that
+read the new image through it, and tangents are exported (computed in the new UV map) so that a tangent-space
+normal map baked in that frame shades the same in a viewer. The per-face loss overlay (``perceptual_loss``,
+``perceptual_loss_color``) is for Blender's viewport and is not exported.
+
+The exporter writes every UV map and colour attribute of a mesh it exports, so each optimized mesh is exported
+through a temporary copy that has only the new UV map and no overlay; the objects get their own mesh back
+afterwards and the copies are removed. The user's data is never changed.
+"""
+import bpy
+
+from .pipeline import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
+
+__all__ = ["export_glb", "EXPORT_OPTIONS"]
+
+# Blender 5.0's glTF exporter, spelled out where its default would drop part of the input (lights, cameras,
+# custom properties as extras) or where this tool needs it (tangents for normal maps baked in the new UV map).
+EXPORT_OPTIONS = dict(
+    export_format="GLB",
+    use_selection=False,        # the whole scene, not just the optimized meshes
+    use_visible=False,
+    use_renderable=False,
+    use_active_collection=False,
+    use_active_scene=False,
+    export_image_format="AUTO",  # the baked PNG stays PNG, the input's JPEGs stay JPEG
+    export_texcoords=True,
+    export_normals=True,
+    export_tangents=True,
+    export_materials="EXPORT",
+    export_unused_images=False,
+    export_unused_textures=False,
+    export_vertex_color="MATERIAL",
+    export_attributes=False,
+    export_skins=True,
+    export_animations=True,
+    export_morph=True,
+    export_lights=True,
+    export_cameras=True,
+    export_extras=True,
+    export_apply=False,         # modifiers (the armature) stay live: skinning is exported as a skin
+    export_yup=True,
+    check_existing=False,
+    will_save_settings=False,
+)
+
+
+def _optimized_meshes(objects, uv_map, materials):
+    """The meshes that carry ``uv_map``, with the objects that use them and the material remapping.
+
+    The pipeline gives the first object of each mesh an object-linked slot with the material copy; objects that
+    share the mesh keep the original material on the mesh. In the export every user of the mesh gets the copy.
+    """
+    users, copy_of = {}, {}
+    copies = set(materials)
+    for obj in objects:
+        if obj.type != "MESH" or uv_map not in obj.data.uv_layers:
+            continue
+        users.setdefault(obj.data, []).append(obj)
+        for index, slot in enumerate(obj.material_slots):
+            if slot.link == "OBJECT" and slot.material in copies and index < len(obj.data.materials):
+                original = obj.data.materials[index]
+                if original is not None:
+                    copy_of[original] = slot.material
+    return users, copy_of
+
+
+def _export_mesh(mesh, uv_map, copy_of):
+    """A copy of ``mesh`` with ``uv_map`` as its only UV map, no loss overlay, and the material copies."""
+    copy = mesh.copy()
+    for name in [layer.name for layer in copy.uv_layers if layer.name != uv_map]:
+        copy.uv_layers.remove(copy.uv_layers[name])  # removal invalidates other layer references: go by name
+    layer = copy.uv_layers[uv_map]
+    layer.active = True
+    layer.active_render = True
+    for name in (LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE):
+        if name in copy.attributes:
+            copy.attributes.remove(copy.attributes[name])
+    for index, material in enumerate(copy.materials):
+        if material in copy_of:
+            copy.materials[index] = copy_of[material]
+    return copy
+
+
+def export_glb(objects, result, path):
+    """Export the scene to ``path`` (.glb) with ``objects`` on the run's new UV map, image and materials.
+
+    Parameters
+    ----------
+    objects : sequence of bpy.types.Object
+        The optimized mesh objects (those that share a mesh included).
+    result : perceptual_uv.bridge.pipeline.PipelineResult
+        ``uv_map`` (the new UV map's name) and ``materials`` (the material copies) of the run.
+    path : str or os.PathLike
+
+    Raises
+    ------
+    RuntimeError
+        Blender's exporter failed (an I/O error, for instance).
+    """
+    users, copy_of = _optimized_meshes(objects, result.uv_map, result.materials)
+    swapped = []  # (mesh, its name, export copy, objects)
+    try:
+        for mesh, mesh_users in users.items():
+            copy = _export_mesh(mesh, result.uv_map, copy_of)
+            name = mesh.name
+            swapped.append((mesh, name, copy, mesh_users))
+            mesh.name = f"{name}.perceptual_export_source"
+            copy.name = name  # the glTF mesh keeps the input's name
+            for obj in mesh_users:
+                obj.data = copy
+        bpy.ops.export_scene.gltf(filepath=str(path), **EXPORT_OPTIONS)
+    finally:
+        for mesh, name, copy, mesh_users in reversed(swapped):
+            for obj in mesh_users:
+                obj.data = mesh
+            bpy.data.meshes.remove(copy)
+            mesh.name = name

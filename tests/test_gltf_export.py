@@ -1,0 +1,369 @@
+"""What a .glb written by ``optimize --out X.glb`` keeps (issue 23, "Must show" item 4).
+
+The whole input scene (nodes, empties, lights, cameras, other meshes, skins with their joints and weights,
+animations), the new UV map as the optimized meshes' only texture coordinates, the new baked image in their
+material, no loss-overlay colours, and 0 errors from the Khronos glTF validator.
+"""
+import json
+import pathlib
+import struct
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+bmesh = pytest.importorskip("bmesh")
+
+import gltf_validate  # noqa: E402  (tests/ is on sys.path under pytest)
+from conftest import reset_blender_scene  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+FAST_ARGS = ["--iterations", "10", "--screen-pixels", "32", "--max-screen-pixels", "32", "--workers", "1"]
+COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+
+
+# --- reading a .glb / .gltf with the standard library and numpy -------------------------------------------
+
+def read_glb(path):
+    """The JSON chunk (dict) and the BIN chunk (bytes) of a .glb."""
+    data = pathlib.Path(path).read_bytes()
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    assert magic == b"glTF" and version == 2 and length == len(data)
+    json_length, json_type = struct.unpack_from("<I4s", data, 12)
+    assert json_type == b"JSON"
+    gltf = json.loads(data[20:20 + json_length])
+    binary = b""
+    offset = 20 + json_length
+    if offset < len(data):
+        bin_length, bin_type = struct.unpack_from("<I4s", data, offset)
+        assert bin_type == b"BIN\x00"
+        binary = data[offset + 8:offset + 8 + bin_length]
+    return gltf, binary
+
+
+def read_input_json(path):
+    path = pathlib.Path(path)
+    return read_glb(path)[0] if path.suffix.lower() == ".glb" else json.loads(path.read_text())
+
+
+def buffer_view_bytes(gltf, binary, index):
+    view = gltf["bufferViews"][index]
+    start = view.get("byteOffset", 0)
+    return binary[start:start + view["byteLength"]], view.get("byteStride")
+
+
+def accessor(gltf, binary, index):
+    """An accessor's elements as an (count, components) array (not sparse, not normalized)."""
+    acc = gltf["accessors"][index]
+    dtype = np.dtype(DTYPES[acc["componentType"]])
+    width = COMPONENTS[acc["type"]]
+    data, stride = buffer_view_bytes(gltf, binary, acc["bufferView"])
+    start, count = acc.get("byteOffset", 0), acc["count"]
+    stride = stride or dtype.itemsize * width
+    rows = np.lib.stride_tricks.as_strided(np.frombuffer(data, dtype=np.uint8, offset=start,
+                                                         count=(count - 1) * stride + dtype.itemsize * width),
+                                           shape=(count, dtype.itemsize * width), strides=(stride, 1))
+    return np.ascontiguousarray(rows).view(dtype).reshape(count, width)
+
+
+def image_size(data):
+    """(width, height) of PNG or JPEG bytes."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n":
+        return struct.unpack(">II", data[16:24])
+    assert data[:2] == b"\xff\xd8", "neither PNG nor JPEG"
+    offset = 2
+    while offset < len(data):
+        marker, length = data[offset + 1], struct.unpack(">H", data[offset + 2:offset + 4])[0]
+        if marker in (0xC0, 0xC1, 0xC2):
+            height, width = struct.unpack(">HH", data[offset + 5:offset + 9])
+            return width, height
+        offset += 2 + length
+    raise AssertionError("no JPEG frame header")
+
+
+def counts(gltf):
+    """What the whole-scene checks compare between the input and the output."""
+    lights = gltf.get("extensions", {}).get("KHR_lights_punctual", {}).get("lights", [])
+    return {"nodes": len(gltf.get("nodes", [])), "skins": len(gltf.get("skins", [])),
+            "joints": sorted(len(skin["joints"]) for skin in gltf.get("skins", [])),
+            "animations": len(gltf.get("animations", [])), "cameras": len(gltf.get("cameras", [])),
+            "lights": len(lights), "meshes": len(gltf.get("meshes", [])),
+            "skinned_nodes": sum("skin" in node for node in gltf.get("nodes", []))}
+
+
+def colour_attributes(gltf):
+    return {name for mesh in gltf.get("meshes", []) for primitive in mesh["primitives"]
+            for name in primitive["attributes"] if name.startswith("COLOR_")}
+
+
+# --- the checks --------------------------------------------------------------------------------------------
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "perceptual_uv", *args], capture_output=True, text=True,
+                          timeout=900)
+
+
+def optimize_to_glb(model, folder, *extra):
+    out, report_path = folder / "out.glb", folder / "report.json"
+    result = run_cli("optimize", str(model), "--out", str(out), "--report", str(report_path), *FAST_ARGS, *extra)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return out, json.loads(report_path.read_text())
+
+
+def check_export(input_path, out, report):
+    """The structure the brief asks for, on one optimized .glb (its input at ``input_path``)."""
+    source = read_input_json(input_path)
+    gltf, binary = read_glb(out)
+    assert counts(gltf) == counts(source)
+    assert colour_attributes(gltf) <= colour_attributes(source)  # no COLOR_n the input did not have
+
+    names = set(report["objects"])
+    optimized = [node for node in gltf["nodes"] if node.get("name") in names and "mesh" in node]
+    assert len(optimized) == len(names)
+    for node in optimized:
+        skinned = "skin" in node
+        area = 0.0
+        for primitive in gltf["meshes"][node["mesh"]]["primitives"]:
+            attributes = primitive["attributes"]
+            assert "TEXCOORD_0" in attributes and not any(
+                name.startswith("TEXCOORD_") and name != "TEXCOORD_0" for name in attributes), attributes
+            assert "TANGENT" in attributes
+            if skinned:
+                assert "JOINTS_0" in attributes and "WEIGHTS_0" in attributes
+            material = gltf["materials"][primitive["material"]]
+            base = material["pbrMetallicRoughness"]["baseColorTexture"]
+            assert base.get("texCoord", 0) == 0
+            image = gltf["images"][gltf["textures"][base["index"]]["source"]]
+            assert image["name"] == pathlib.Path(report["image"]).stem
+            data, _ = buffer_view_bytes(gltf, binary, image["bufferView"])
+            assert image_size(data) == (report["resolution"], report["resolution"])
+            # TEXCOORD_0 is the packed new UV map: its triangles cover what the report measured on it.
+            uv = accessor(gltf, binary, attributes["TEXCOORD_0"]).astype(np.float64)
+            triangles = uv[accessor(gltf, binary, primitive["indices"]).reshape(-1, 3)]
+            edges = triangles[:, 1:] - triangles[:, :1]
+            area += 0.5 * np.abs(edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]).sum()
+        if len(optimized) == 1:
+            assert area == pytest.approx(report["image_coverage"], rel=1e-3)
+    return gltf
+
+
+def check_validator(input_path, out):
+    """0 errors from the Khronos validator, and no kind of warning that the input did not have already."""
+    reason = gltf_validate.unavailable()
+    if reason:
+        pytest.skip(reason)
+    validated = gltf_validate.validate(out)
+    errors = [m for m in validated["messages"] if m["severity"] == 0]
+    assert validated["errors"] == 0, errors[:5]
+    source_warnings = {m["code"] for m in gltf_validate.validate(input_path)["messages"] if m["severity"] == 1}
+    assert {m["code"] for m in validated["messages"] if m["severity"] == 1} <= source_warnings
+    return validated
+
+
+# --- inputs ------------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def spot_scene(spot_obj, tmp_path_factory):
+    """A .glb scene around a patch of the bundled spot: an animated parent empty, an animated armature that skins
+    the patch, an untextured mesh, a light and a camera, none of which the run optimizes."""
+    reset_blender_scene()
+    bpy.ops.wm.obj_import(filepath=str(spot_obj))
+    spot = bpy.data.objects["spot_triangulated"]
+    bm = bmesh.new()
+    bm.from_mesh(spot.data)
+    bmesh.ops.delete(bm, geom=[f for f in bm.faces if f.calc_center_median().z < 1.0], context="FACES")
+    bm.to_mesh(spot.data)
+    bm.free()
+    # Smooth shading lets the exporter share vertices between triangles; flat-shaded, every triangle is written
+    # apart and comes back as its own UV island (slow to pack, and not what a real asset looks like).
+    spot.data.shade_smooth()
+    scene = bpy.context.scene
+    root = bpy.data.objects.new("Root", None)
+    scene.collection.objects.link(root)
+    spot.parent = root
+    root.location = (0.0, 0.0, 0.0)
+    root.keyframe_insert("location", frame=1)
+    root.location = (0.0, 0.5, 0.0)
+    root.keyframe_insert("location", frame=10)
+    # A two-bone rig under the root, skinning the patch (lower half to one bone, upper half to the other), with
+    # a bone animation of its own.
+    rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    scene.collection.objects.link(rig)
+    rig.parent = root
+    bpy.context.view_layer.objects.active = rig
+    with bpy.context.temp_override(active_object=rig, object=rig, selected_objects=[rig]):
+        bpy.ops.object.mode_set(mode="EDIT")
+        lower = rig.data.edit_bones.new("Lower")
+        lower.head, lower.tail = (0.0, 0.0, 0.8), (0.0, 0.0, 1.1)
+        upper = rig.data.edit_bones.new("Upper")
+        upper.head, upper.tail, upper.parent = (0.0, 0.0, 1.1), (0.0, 0.0, 1.4), lower
+        bpy.ops.object.mode_set(mode="OBJECT")
+    spot.parent = rig
+    heights = [vertex.co.z for vertex in spot.data.vertices]
+    middle = sorted(heights)[len(heights) // 2]
+    for bone, chosen in (("Lower", [i for i, z in enumerate(heights) if z < middle]),
+                         ("Upper", [i for i, z in enumerate(heights) if z >= middle])):
+        spot.vertex_groups.new(name=bone).add(chosen, 1.0, "REPLACE")
+    spot.modifiers.new("Armature", "ARMATURE").object = rig
+    pose_bone = rig.pose.bones["Upper"]
+    pose_bone.rotation_mode = "XYZ"
+    pose_bone.rotation_euler = (0.0, 0.0, 0.0)
+    pose_bone.keyframe_insert("rotation_euler", frame=1)
+    pose_bone.rotation_euler = (0.3, 0.0, 0.0)
+    pose_bone.keyframe_insert("rotation_euler", frame=10)
+    crate = bpy.data.objects.new("Crate", bpy.data.meshes.new("Crate"))
+    bm = bmesh.new()
+    bmesh.ops.create_cube(bm, size=0.3)
+    bm.to_mesh(crate.data)
+    bm.free()
+    crate.data.materials.append(bpy.data.materials.new("Plain"))
+    crate.location = (1.0, 0.0, 0.0)
+    scene.collection.objects.link(crate)
+    for name, data in (("Lamp", bpy.data.lights.new("Lamp", "POINT")), ("Eye", bpy.data.cameras.new("Eye"))):
+        obj = bpy.data.objects.new(name, data)
+        obj.location = (0.0, -3.0, 1.0)
+        scene.collection.objects.link(obj)
+    path = tmp_path_factory.mktemp("scene") / "spot_scene.glb"
+    bpy.ops.export_scene.gltf(filepath=str(path), export_format="GLB", export_lights=True, export_cameras=True)
+    reset_blender_scene()
+    source = counts(read_glb(path)[0])
+    assert source["skins"] == 1 and source["joints"] == [2] and source["animations"] >= 1, source
+    assert source["lights"] == 1 and source["cameras"] == 1, source
+    return path
+
+
+@pytest.fixture(scope="module")
+def cesium_man(shared_models_dir):
+    path = shared_models_dir / "CesiumMan" / "CesiumMan.gltf"
+    if not path.is_file():
+        pytest.skip(f"{path} is not available")
+    return path
+
+
+@pytest.fixture(scope="module")
+def spot_run(spot_scene, tmp_path_factory):
+    return optimize_to_glb(spot_scene, tmp_path_factory.mktemp("spot_run"))
+
+
+@pytest.fixture(scope="module")
+def cesium_run(cesium_man, tmp_path_factory):
+    # An explicit resolution packs once (the run's slowest part after the triangle-wise stage).
+    return optimize_to_glb(cesium_man, tmp_path_factory.mktemp("cesium_run"), "--resolution", "256")
+
+
+# --- tests -------------------------------------------------------------------------------------------------
+
+def test_validator_helper_reports_errors_of_a_broken_file(tmp_path):
+    reason = gltf_validate.unavailable()
+    if reason:
+        pytest.skip(reason)
+    broken = tmp_path / "broken.gltf"
+    broken.write_text(json.dumps({"asset": {"version": "2.0"}, "nodes": [{"mesh": 3}]}))
+    result = gltf_validate.validate(broken)
+    assert result["errors"] >= 1 and any(m["severity"] == 0 for m in result["messages"])
+
+
+def test_spot_scene_keeps_every_object(spot_scene, spot_run):
+    out, report = spot_run
+    assert report["objects"] == ["spot_triangulated"]
+    gltf = check_export(spot_scene, out, report)
+    names = {node.get("name") for node in gltf["nodes"]}
+    assert {"Root", "Rig", "Lower", "Upper", "Crate", "Lamp", "Eye", "spot_triangulated"} <= names
+    # The untextured mesh is exported as it was: its own material, no baked image.
+    crate = next(node for node in gltf["nodes"] if node.get("name") == "Crate")
+    assert gltf["materials"][gltf["meshes"][crate["mesh"]]["primitives"][0]["material"]]["name"] == "Plain"
+    assert len(gltf["images"]) == 1
+
+
+def test_spot_scene_glb_passes_the_validator(spot_scene, spot_run):
+    check_validator(spot_scene, spot_run[0])
+
+
+@pytest.mark.slow  # ~45-60 s on 2 shared cores: the whole 4672-triangle run
+def test_cesium_man_keeps_skin_joints_weights_and_animation(cesium_man, cesium_run):
+    out, report = cesium_run
+    gltf = check_export(cesium_man, out, report)
+    assert counts(gltf)["nodes"] == 22 and counts(gltf)["joints"] == [19] and counts(gltf)["animations"] == 1
+
+
+@pytest.mark.slow  # ~45-60 s on 2 shared cores: the whole 4672-triangle run
+def test_cesium_man_glb_passes_the_validator(cesium_man, cesium_run):
+    # The input itself has 210 errors (joint weights that do not sum to 1); Blender's exporter normalizes them.
+    check_validator(cesium_man, cesium_run[0])
+
+
+def test_export_glb_uses_copies_and_leaves_the_scene_as_it_was(empty_scene, tmp_path):
+    """Without a run: two objects sharing a mesh (only the first has the material copy, as the pipeline leaves
+    them), the overlay attributes, a second UV map and an animated shape key. The .glb gets one mesh on the new
+    UV map with the copy; afterwards the file's data are exactly as before."""
+    from types import SimpleNamespace
+
+    from perceptual_uv.bridge.gltf_export import export_glb
+    from perceptual_uv.bridge.pipeline import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
+
+    mesh = bpy.data.meshes.new("Box")
+    bm = bmesh.new()
+    bm.loops.layers.uv.new("UVMap")
+    bmesh.ops.create_cube(bm, size=1.0, calc_uvs=True)
+    bm.to_mesh(mesh)
+    bm.free()
+    mesh.uv_layers.new(name="PerceptualUV")
+    mesh.attributes.new(LOSS_ATTRIBUTE, "FLOAT", "FACE")
+    mesh.attributes.new(LOSS_COLOR_ATTRIBUTE, "BYTE_COLOR", "CORNER")
+    images, materials = {}, {}
+    for name, size in (("old", 32), ("new", 16)):
+        images[name] = bpy.data.images.new(f"{name}_image", size, size)
+        images[name].pack()  # the exporter embeds pixels from packed or saved images
+        material = bpy.data.materials.new("Box" if name == "old" else "Box_perceptual")
+        tree = material.node_tree
+        texture = tree.nodes.new("ShaderNodeTexImage")
+        texture.image = images[name]
+        tree.links.new(texture.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Base Color"])
+        if name == "new":
+            uv_node = tree.nodes.new("ShaderNodeUVMap")
+            uv_node.uv_map = "PerceptualUV"
+            tree.links.new(uv_node.outputs["UV"], texture.inputs["Vector"])
+        materials[name] = material
+    mesh.materials.append(materials["old"])
+    first, second = (bpy.data.objects.new(name, mesh) for name in ("First", "Second"))
+    for obj in (first, second):
+        empty_scene.collection.objects.link(obj)
+    first.material_slots[0].link = "OBJECT"
+    first.material_slots[0].material = materials["new"]
+    first.shape_key_add(name="Basis")
+    key = first.shape_key_add(name="Bulge")
+    key.value = 0.0
+    key.keyframe_insert("value", frame=1)
+    key.value = 1.0
+    key.keyframe_insert("value", frame=10)
+    before = {"meshes": sorted(m.name for m in bpy.data.meshes), "keys": len(bpy.data.shape_keys),
+              "actions": len(bpy.data.actions), "uv": [layer.name for layer in mesh.uv_layers],
+              "attributes": sorted(a.name for a in mesh.attributes), "data": [first.data, second.data],
+              "slots": [(s.link, s.material.name) for o in (first, second) for s in o.material_slots]}
+
+    out = tmp_path / "box.glb"
+    export_glb([first, second], SimpleNamespace(uv_map="PerceptualUV", materials=[materials["new"]]), out)
+
+    after = {"meshes": sorted(m.name for m in bpy.data.meshes), "keys": len(bpy.data.shape_keys),
+             "actions": len(bpy.data.actions), "uv": [layer.name for layer in mesh.uv_layers],
+             "attributes": sorted(a.name for a in mesh.attributes), "data": [first.data, second.data],
+             "slots": [(s.link, s.material.name) for o in (first, second) for s in o.material_slots]}
+    assert after == before
+    gltf, binary = read_glb(out)
+    nodes = {node["name"]: node for node in gltf["nodes"]}
+    assert nodes["First"]["mesh"] == nodes["Second"]["mesh"]
+    (mesh_json,) = gltf["meshes"]
+    assert mesh_json["name"] == "Box" and len(mesh_json["weights"]) == 1
+    for primitive in mesh_json["primitives"]:
+        assert {name for name in primitive["attributes"] if name.startswith(("TEXCOORD_", "COLOR_"))} == {
+            "TEXCOORD_0"}
+        assert "TANGENT" in primitive["attributes"] and len(primitive["targets"]) == 1
+        assert gltf["materials"][primitive["material"]]["name"] == "Box_perceptual"
+    assert [image["name"] for image in gltf["images"]] == ["new_image"]
+    assert len(gltf.get("animations", [])) == 1
+    reason = gltf_validate.unavailable()
+    if reason is None:
+        assert gltf_validate.validate(out)["errors"] == 0
