@@ -80,6 +80,59 @@ def _costs(text):
     return costs
 
 
+def _add_optimize_options(parser, *, workers_flag="--workers"):
+    """The options ``optimize`` and ``batch`` share: which object and UV map, and the optimization settings.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The subcommand's parser.
+    workers_flag : str
+        Flag of the per-asset worker processes (``batch`` uses ``--workers`` for its Dask workers).
+    """
+    parser.add_argument("--object", help="mesh object to optimize (default: the textured mesh objects)")
+    parser.add_argument("--uv", help="input UV map (default: the active one)")
+    parser.add_argument("--epsilon", type=float, default=DEFAULTS.epsilon,
+                        help=f"perceptual loss bound (default {DEFAULTS.epsilon})")
+    size = parser.add_mutually_exclusive_group()
+    size.add_argument("--cost", type=float, default=DEFAULTS.target_cost,
+                      help=f"target relative cost (default {DEFAULTS.target_cost})")
+    size.add_argument("--resolution", type=int, default=None, help="explicit texture size in pixels")
+    parser.add_argument("--iterations", type=int, default=DEFAULTS.iterations, help="loss evaluations per triangle")
+    parser.add_argument("--screen-pixels", type=int, default=DEFAULTS.screen_pixels,
+                        help=f"per-triangle view size (default {DEFAULTS.screen_pixels}; grows to one pixel per "
+                             "input texel, up to --max-screen-pixels)")
+    parser.add_argument("--max-screen-pixels", type=int, default=DEFAULTS.max_screen_pixels,
+                        help=f"largest per-triangle view size (default {DEFAULTS.max_screen_pixels}; lower it "
+                             "to bound the time on large textures)")
+    parser.add_argument("--margin", type=int, default=DEFAULTS.margin, help="island margin in pixels")
+    parser.add_argument(workers_flag, dest="workers", type=int, default=DEFAULTS.workers,
+                        metavar="N" if workers_flag != "--workers" else None,
+                        help="worker processes of one asset's triangle-wise stage (0: one per core)")
+    parser.add_argument("--seed", type=int, default=DEFAULTS.seed)
+
+
+def _add_batch_options(batch):
+    """``batch``'s own options; the optimization settings come from :func:`_add_optimize_options`."""
+    batch.add_argument("inputs", metavar="INPUT", nargs="+",
+                       help="model files, folders (searched recursively for .blend, .glb/.gltf, .obj) or globs")
+    batch.add_argument("--out", required=True, type=pathlib.Path,
+                       help="output folder: the input tree mirrored, one folder per asset, manifest and summary")
+    batch.add_argument("--format", choices=("blend", "glb"), default="blend", help="output format (default blend)")
+    batch.add_argument("--scheduler", metavar="ADDRESS",
+                       help="Dask scheduler address, e.g. tcp://host:8786 (default: a local cluster)")
+    batch.add_argument("--workers", dest="dask_workers", type=int, default=None, metavar="N",
+                       help="local Dask worker processes, one asset at a time each (default: cores / "
+                            "--asset-workers, at least 1; not with --scheduler)")
+    batch.add_argument("--timeout", type=float, default=None, metavar="S",
+                       help="seconds one asset may take before it is killed and retried (default: no limit)")
+    batch.add_argument("--retries", type=int, default=1,
+                       help="new attempts after a crash, a dead worker or a timeout (default 1)")
+    batch.add_argument("--blender", metavar="PATH",
+                       help="run each asset as `PATH -b --factory-startup --python cli.py -- optimize ...` "
+                            "instead of `python -m perceptual_uv optimize ...` with the bpy module")
+
+
 def build_parser():
     parser = _Parser(prog=PROG, description="Re-parameterize a textured mesh's UV map so its texture needs fewer "
                      "pixels for the same look on screen (Sun et al. 2022).")
@@ -87,26 +140,14 @@ def build_parser():
 
     optimize = commands.add_parser("optimize", help="optimize the UV map of a model and bake its texture")
     optimize.add_argument("input", metavar="IN", type=_existing_model, help=".blend, .glb/.gltf or .obj")
-    optimize.add_argument("--object", help="mesh object to optimize (default: the textured mesh objects)")
-    optimize.add_argument("--uv", help="input UV map (default: the active one)")
-    optimize.add_argument("--epsilon", type=float, default=DEFAULTS.epsilon,
-                          help=f"perceptual loss bound (default {DEFAULTS.epsilon})")
-    size = optimize.add_mutually_exclusive_group()
-    size.add_argument("--cost", type=float, default=DEFAULTS.target_cost,
-                      help=f"target relative cost (default {DEFAULTS.target_cost})")
-    size.add_argument("--resolution", type=int, default=None, help="explicit texture size in pixels")
-    optimize.add_argument("--iterations", type=int, default=DEFAULTS.iterations, help="loss evaluations per triangle")
-    optimize.add_argument("--screen-pixels", type=int, default=DEFAULTS.screen_pixels,
-                          help=f"per-triangle view size (default {DEFAULTS.screen_pixels}; grows to one pixel per "
-                               "input texel, up to --max-screen-pixels)")
-    optimize.add_argument("--max-screen-pixels", type=int, default=DEFAULTS.max_screen_pixels,
-                          help=f"largest per-triangle view size (default {DEFAULTS.max_screen_pixels}; lower it "
-                               "to bound the time on large textures)")
-    optimize.add_argument("--margin", type=int, default=DEFAULTS.margin, help="island margin in pixels")
-    optimize.add_argument("--workers", type=int, default=DEFAULTS.workers, help="worker processes (0: one per core)")
-    optimize.add_argument("--seed", type=int, default=DEFAULTS.seed)
+    _add_optimize_options(optimize)
     optimize.add_argument("--out", required=True, type=_output_model, help="OUT.blend or OUT.glb")
     optimize.add_argument("--report", type=pathlib.Path, help="write the JSON report here")
+
+    batch = commands.add_parser("batch", help="optimize every model of an asset library on Dask (resumable)")
+    _add_batch_options(batch)
+    _add_optimize_options(batch, workers_flag="--asset-workers")
+    batch.set_defaults(workers=1)  # --asset-workers: assets run side by side, one process each by default
 
     evaluate = commands.add_parser("evaluate", help="perceptual loss of a UV map at several relative costs")
     evaluate.add_argument("input", metavar="IN", type=_existing_model)
@@ -119,7 +160,16 @@ def build_parser():
 
 
 def _validate(args):
-    if args.command == "optimize":
+    if args.command == "batch":
+        if args.retries < 0:
+            raise UsageError(f"--retries must be 0 or more, not {args.retries}")
+        if args.timeout is not None and not args.timeout > 0:
+            raise UsageError(f"--timeout must be positive, not {args.timeout}")
+        if args.dask_workers is not None and args.scheduler:
+            raise UsageError("--workers sets the local cluster's size; the cluster at --scheduler has its own workers")
+        if args.dask_workers is not None and args.dask_workers < 1:
+            raise UsageError(f"--workers must be 1 or more, not {args.dask_workers}")
+    if args.command in ("optimize", "batch"):
         try:
             args.settings = OptimizeSettings(
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
@@ -136,6 +186,10 @@ def parse_args(argv):
 
 
 def _run(args):
+    if args.command == "batch":
+        from .library_batch.run import run_batch
+
+        return run_batch(args)
     if args.command == "optimize":
         from .bridge.batch import optimize_file
 
@@ -180,7 +234,9 @@ def main(argv=None):
         signal.signal(signal.SIGTERM, _interrupt)  # a batch system's stop cleans up like Ctrl-C
     try:
         args = parse_args(argv)
-        _run(args)
+        result = _run(args)
+        if args.command == "batch":
+            return result  # 0: every asset has its output; 1: some failed or were bad inputs (the summary lists them)
     except SystemExit as done:  # --help
         return done.code if isinstance(done.code, int) else 0
     except (UsageError, ValueError, FileNotFoundError, PermissionError) as error:
