@@ -53,7 +53,7 @@ def _check(objects, source_uv, name):
 
 
 def _pack(objects, name):
-    pack_uv_layer(objects, name, margin_fraction=PACK_MARGIN_PIXELS / reference_resolution(objects))
+    pack_uv_layer(objects, name, margin=PACK_MARGIN_PIXELS, resolution=reference_resolution(objects))
 
 
 def _write(objects, name, uv_all):

@@ -1,17 +1,17 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Pack the islands of a UV map with translations, one uniform scale and 90-degree rotations only."""
+"""Pack the islands of a UV map with translations and 90-degree rotations only, on the new image's pixel grid."""
 import bpy
 import numpy as np
 
 __all__ = ["pack_uv_layer", "uv_operator_on_copies"]
 
 
-def pack_uv_layer(objects, uv_name, *, margin_fraction, shape_method="CONCAVE"):
-    """Pack the islands of the UV map ``uv_name`` of ``objects`` together into the unit square.
+def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=None):
+    """Pack the islands of the UV map ``uv_name`` of ``objects`` together into one square image, in place.
 
-    Blender's ``uv.pack_islands`` runs on temporary copies of the meshes in a temporary scene, so the objects'
-    modes, selections, active UV maps and every other UV map stay as they were; only the packed coordinates of
-    ``uv_name`` are written back.
+    The islands (charts: triangles joined by edges whose UVs agree) move by translations and quarter turns
+    and all scale by one factor (:func:`perceptual_uv.core.packing.pack_charts`); the objects' other UV maps,
+    modes and selections stay as they were.
 
     Parameters
     ----------
@@ -19,24 +19,44 @@ def pack_uv_layer(objects, uv_name, *, margin_fraction, shape_method="CONCAVE"):
         Mesh objects whose islands share one texture (one atlas).
     uv_name : str
         The UV map to pack (a map the caller owns, e.g. the new ``PerceptualUV``).
-    margin_fraction : float
-        Space between islands as a fraction of the unit square (``margin_pixels / resolution``).
-    shape_method : {"CONCAVE", "CONVEX", "AABB"}
-        Island shape approximation: tighter is slower.
+    margin : int
+        Smallest gap between islands, in pixels of the packed image.
+    resolution : int, optional
+        Side of the image the islands fill (the densest packing that fits).
+    texels_per_unit : float, optional
+        Pixels per unit of the UV map as it is: the islands keep this density and the image is as large as the
+        packing needs. Exactly one of ``resolution`` and ``texels_per_unit`` is given.
 
-    Notes
-    -----
-    Rotation is limited to ``CARDINAL`` (multiples of 90 degrees): any other rotation or a shear would undo
-    the orientation the mesh-wise stage chose relative to the texel grid (paper Sec. 5.1, "Texture packing").
+    Returns
+    -------
+    perceptual_uv.core.packing.Packing
+        With ``uv`` in the order of :func:`perceptual_uv.bridge.mesh_io.read_mesh` over ``objects``.
     """
-    def pack():
-        bpy.ops.uv.pack_islands(udim_source="CLOSEST_UDIM", rotate=True, rotate_method="CARDINAL", scale=True,
-                                merge_overlap=False, margin_method="FRACTION", margin=margin_fraction, pin=False,
-                                shape_method=shape_method)
+    from ..core.charts import uv_topology
+    from ..core.packing import pack_charts
+    from .mesh_io import read_mesh
 
-    for obj, packed in zip(objects, uv_operator_on_copies(objects, uv_name, pack)):
-        obj.data.uv_layers[uv_name].uv.foreach_set("vector", packed.ravel())
+    objects = list(objects)
+    for obj in objects:
+        if obj.type != "MESH" or uv_name not in obj.data.uv_layers:
+            raise ValueError(f"'{obj.name}' has no UV map '{uv_name}'")
+    arrays = [read_mesh(obj, uv_name=uv_name) for obj in objects]
+    offsets = np.cumsum([0] + [len(a.V) for a in arrays])
+    F = np.concatenate([a.F + offset for a, offset in zip(arrays, offsets)])
+    uv = np.concatenate([a.uv for a in arrays])
+    packing = pack_charts(uv, uv_topology(F, uv).face_chart, margin=margin, resolution=resolution,
+                          texels_per_unit=texels_per_unit)
+    start = 0
+    for obj, a in zip(objects, arrays):
+        layer = obj.data.uv_layers[uv_name]
+        loop_uv = np.empty(2 * len(obj.data.loops), dtype=np.float32)
+        layer.uv.foreach_get("vector", loop_uv)
+        loop_uv = loop_uv.reshape(-1, 2)
+        loop_uv[a.tri_loops.ravel()] = packing.uv[start:start + len(a.F)].reshape(-1, 2)
+        layer.uv.foreach_set("vector", loop_uv.ravel())
         obj.data.update()
+        start += len(a.F)
+    return packing
 
 
 def uv_operator_on_copies(objects, uv_name, operator):

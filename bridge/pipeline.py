@@ -47,8 +47,9 @@ class Progress:
         return f"{self.message} · {self.fraction:.0%} of the run{left}"
 
 
-# Expected share of a run's time per stage, in the order they run, at the default settings (bench/pipeline.py).
-STAGE_SHARES = {"read": 0.02, "triangle": 0.70, "mesh": 0.15, "pack": 0.06, "bake": 0.06, "loss": 0.01, "done": 0.0}
+# Expected share of a run's time per stage, in the order they run: the mean shares of spot, bob, BoomBox and
+# CesiumMan at the default settings on 2 workers (bench/pipeline.py).
+STAGE_SHARES = {"read": 0.01, "triangle": 0.78, "mesh": 0.17, "pack": 0.02, "bake": 0.02, "loss": 0.0, "done": 0.0}
 
 
 @dataclasses.dataclass
@@ -331,7 +332,6 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     from ..core.trianglewise import iter_optimize_triangles, losses_at, losses_of
     from .bake import bake_base_color
     from .mesh_io import write_uv_layer
-    from .pack import pack_uv_layer
 
     objects = list(objects)
     if not objects:
@@ -409,13 +409,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         yield step("pack", 0, 1, "Packing islands")
         clock = time.perf_counter()
+        packing = _pack(mesh.uv, uv_fit, meshwise.topology.face_chart, (width, height), settings)
+        uv_out, resolution, coverage = packing.uv, packing.resolution, packing.coverage
         uv_name = _unique_uv_name(objects, settings.uv_map_name)
         for obj, rows in zip(objects, per_object):
-            write_uv_layer(obj, uv_name, uv_fit[rows], mesh.tri_loops[rows])
+            write_uv_layer(obj, uv_name, uv_out[rows], mesh.tri_loops[rows])
             created.uv_layers.append((obj.data, uv_name))
-        resolution = _pack(objects, mesh, uv_name, (width, height), settings, pack_uv_layer)
-        uv_out = _read_packed(objects, mesh, uv_name)
-        coverage = texel_cost.uv_area(uv_out)
         if coverage < LOW_COVERAGE:
             notes.append(f"the packed UV islands cover {coverage:.0%} of the {resolution} x {resolution} image: it "
                          f"holds {1 / coverage:.0f} times the texels the cost counts. An island far longer than it "
@@ -499,43 +498,25 @@ def _relay(stage, name, label, started, step):
         yield step(name, done, total, f"{label}: {done}/{total}{left}")
 
 
-# Largest island margin as a fraction of the image: on tiny images (a few pixels) the margin in pixels cannot be
-# met, and alternating between "margin eats the image" and "no margin" made the resolution oscillate wildly.
-MAX_MARGIN_FRACTION = 0.1
-MAX_RESOLUTION = 16384
+MIN_RESOLUTION = 8
 
 
-def _pack(objects, mesh, uv_name, input_size, settings, pack_uv_layer):
-    """Pack, then pick the resolution; packs again when the margin in pixels came out more than 1 px off."""
-    # First guess: the input's packing efficiency, i.e. r ~ sqrt(c_r) r_hat (Eq. 21 with equal UV areas).
-    guess = settings.resolution or max(8.0, np.sqrt(settings.target_cost) * max(input_size))
-    margin_fraction = min(settings.margin / guess, MAX_MARGIN_FRACTION)
-    for attempt in range(3):
-        pack_uv_layer(objects, uv_name, margin_fraction=margin_fraction)
-        if settings.resolution is not None:
-            return settings.resolution
-        uv_out = _read_packed(objects, mesh, uv_name)
-        resolution = texel_cost.resolution_for_cost(uv_out, settings.target_cost, reference_uv=mesh.uv,
-                                                    reference_resolution=input_size, minimum=8)
-        wanted = min(settings.margin / resolution, MAX_MARGIN_FRACTION)
-        if abs(wanted - margin_fraction) * resolution <= 1:
-            break
-        margin_fraction = wanted
-    if resolution > MAX_RESOLUTION:
-        raise ValueError(f"the target relative cost {settings.target_cost} needs a {resolution} px image, more than "
-                         f"{MAX_RESOLUTION}; lower the target cost or set an explicit resolution")
-    return resolution
+def _pack(uv_in, uv_fit, face_chart, input_size, settings):
+    """Pack the fitted charts on the new image's pixel grid (``core.packing``); the image side follows.
 
+    With a target cost the charts keep the texel density that meets it (Eq. 20-21: ``d^2`` texels per unit of
+    fitted UV area), and the image is as large as their packing; with an explicit resolution they fill it.
+    """
+    from ..core.packing import pack_charts
 
-def _read_packed(objects, mesh, uv_name):
-    """The packed UV map per triangle corner, in the order of ``mesh``'s triangles."""
-    uv = np.empty_like(mesh.uv)
-    for index, obj in enumerate(objects):
-        rows = mesh.object_index == index
-        per_loop = np.empty(2 * len(obj.data.loops), dtype=np.float64)
-        obj.data.uv_layers[uv_name].uv.foreach_get("vector", per_loop)
-        uv[rows] = per_loop.reshape(-1, 2)[mesh.tri_loops[rows]]
-    return uv
+    if settings.resolution is not None:
+        return pack_charts(uv_fit, face_chart, margin=settings.margin, resolution=settings.resolution)
+    reference = texel_cost.texel_cost(uv_in, input_size)
+    density = np.sqrt(settings.target_cost * reference / texel_cost.uv_area(uv_fit))
+    packing = pack_charts(uv_fit, face_chart, margin=settings.margin, texels_per_unit=density)
+    if packing.resolution < MIN_RESOLUTION:
+        packing = pack_charts(uv_fit, face_chart, margin=settings.margin, resolution=MIN_RESOLUTION)
+    return packing
 
 
 def run_to_end(generator):

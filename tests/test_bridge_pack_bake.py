@@ -60,7 +60,7 @@ def test_pack_uses_one_scale_and_quarter_turns_only():
     original = read_uv(obj, "UVMap")
     objects, meshes, scenes = len(bpy.data.objects), len(bpy.data.meshes), len(bpy.data.scenes)
 
-    pack_uv_layer([obj], "Packed", margin_fraction=0.01, shape_method="AABB")
+    pack_uv_layer([obj], "Packed", margin=1, resolution=100)
 
     after = read_uv(obj, "Packed")
     assert after.min() >= 0.0 and after.max() <= 1.0 + 1e-6

@@ -1,0 +1,372 @@
+"""Packing UV charts into a square image with translations and quarter turns, on the image's pixel grid.
+
+Each chart is drawn at a fixed texel density into a bitmap of the pixels it touches (conservative raster),
+grown by half the margin on every side; the bitmaps, largest first, are placed bottom-left first in a strip,
+each in the quarter turn whose top edge ends lowest. Charts move by whole pixels, so the gap between two charts
+is at least the margin in pixels of the final image, and nothing rotates by other angles or shears (paper Sec.
+5.1, "Texture packing": the orientation the mesh-wise stage chose relative to the texel grid is kept).
+
+The texel density is what the cost fixes (Eq. 20-21): at ``d`` pixels per unit of the fitted UV map, a chart
+of fitted area ``a`` covers ``d^2 a`` texels whatever the image size, so the image side is simply the side of
+the packed strip. With an explicit resolution the density is searched instead.
+"""
+import dataclasses
+
+import numpy as np
+
+from ._jit import njit
+from .charts import signed_uv_areas
+
+__all__ = ["Packing", "pack_charts"]
+
+# Strip widths tried, as multiples of the square root of the charts' total bitmap area; the narrowest square
+# that holds the packing wins.
+_WIDTH_FACTORS = (1.0, 1.04, 1.08, 1.13, 1.2)
+_MAX_SIDE = 16384
+
+
+@dataclasses.dataclass(frozen=True)
+class Packing:
+    """A packed UV map.
+
+    Attributes
+    ----------
+    uv : (m, 3, 2) float64 ndarray
+        Per-corner UV coordinates in the unit square of a ``resolution`` px image.
+    resolution : int
+        Side of the square image, in pixels.
+    turns : (k,) int ndarray
+        Quarter turns (counter-clockwise) of each chart.
+    texels_per_unit : float
+        Pixels of the image per unit of the input UV map: every chart is scaled by ``texels_per_unit /
+        resolution``.
+    coverage : float
+        Fraction of the image the charts' triangles cover.
+    """
+
+    uv: np.ndarray
+    resolution: int
+    turns: np.ndarray
+    texels_per_unit: float
+    coverage: float
+
+
+def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None):
+    """Pack the charts of ``uv`` with translations and quarter turns into one square image.
+
+    Parameters
+    ----------
+    uv : (m, 3, 2) array_like
+        Per-corner UV coordinates of the charts, at any common scale.
+    face_chart : (m,) array_like of int
+        Chart of each triangle, labels ``0 .. k-1``.
+    margin : int
+        Smallest gap between charts, in pixels of the packed image.
+    texels_per_unit : float, optional
+        Pixels per unit of ``uv``: each chart keeps this density and the image is as large as the packing
+        needs. Exactly one of ``texels_per_unit`` and ``resolution`` is given.
+    resolution : int, optional
+        Side of the image: the density is the largest found (within 1 %) whose packing fits.
+
+    Returns
+    -------
+    Packing
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, no chart with area, or a packing larger than 16384 px.
+
+    References
+    ----------
+    Sun et al. 2022, Sec. 5.1 ("translations and 90-degree rotations only") and Eq. 20-21 (texel cost).
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    face_chart = np.asarray(face_chart, dtype=np.int64)
+    if uv.ndim != 3 or uv.shape[1:] != (3, 2) or face_chart.shape != uv.shape[:1]:
+        raise ValueError(f"uv must be (m, 3, 2) and face_chart (m,), got {uv.shape} and {face_chart.shape}")
+    if (texels_per_unit is None) == (resolution is None):
+        raise ValueError("give exactly one of texels_per_unit and resolution")
+    if margin < 0:
+        raise ValueError(f"margin must be >= 0 pixels, got {margin}")
+    if not np.isfinite(uv).all():
+        raise ValueError("uv has non-finite coordinates")
+    area = float(np.abs(signed_uv_areas(uv)).sum())
+    if area <= 0:
+        raise ValueError("the charts have zero total area: nothing to pack")
+    charts = np.unique(face_chart)
+    if charts[0] < 0 or charts[-1] != len(charts) - 1:
+        raise ValueError("face_chart labels must be 0 .. k-1")
+    if texels_per_unit is not None:
+        if not texels_per_unit > 0:
+            raise ValueError(f"texels_per_unit must be positive, got {texels_per_unit}")
+        return _pack_at(uv, face_chart, len(charts), float(texels_per_unit), int(margin), max_side=None)
+    if not 1 <= resolution <= _MAX_SIDE:
+        raise ValueError(f"resolution must be in [1, {_MAX_SIDE}], got {resolution}")
+    return _pack_into(uv, face_chart, len(charts), int(resolution), int(margin), area)
+
+
+def _pack_into(uv, face_chart, count, resolution, margin, area):
+    """The densest packing found that fits a ``resolution`` square, scaled up to fill it.
+
+    A packing's side grows about linearly with the density, so one packing gives the density to start from;
+    whether a packing fits is not monotonic in the density, so 1 % steps go down until one fits and a few go up,
+    and the largest density that fits wins. Its layout is then scaled up until the charts reach the far border
+    but for half a margin (every gap grows with it).
+    """
+    first = _pack_at(uv, face_chart, count, resolution * np.sqrt(0.6 / area), margin, max_side=None)
+    start = first.texels_per_unit * resolution / first.resolution
+    best = None
+    for step in range(-40, 4):
+        if best is not None and step < 0:
+            continue
+        density = start * 1.01 ** step
+        packing = _pack_at(uv, face_chart, count, density, margin, max_side=resolution)
+        if packing is not None and (best is None or density > best.texels_per_unit):
+            best = packing
+    if best is None:
+        raise ValueError(f"the charts do not fit a {resolution} px image with a {margin} px margin")
+    # Scale the layout until the charts reach the far border but for half a margin: every gap grows with it.
+    reach = best.uv.max() * best.resolution
+    scale = (resolution - (margin + 1) // 2) / reach if reach > 0 else 1.0
+    scale = max(scale, resolution / best.resolution)
+    uv_scaled = best.uv * best.resolution * scale / resolution
+    return Packing(uv=uv_scaled, resolution=resolution, turns=best.turns,
+                   texels_per_unit=best.texels_per_unit * scale, coverage=best.coverage * (best.resolution * scale
+                                                                                          / resolution) ** 2)
+
+
+def _pack_at(uv, face_chart, count, density, margin, *, max_side):
+    """Pack at ``density``; the smallest square over the strip widths, or None if that is larger than ``max_side``."""
+    grow = (margin + 1) // 2
+    extent = (uv.reshape(-1, 2).max(axis=0) - uv.reshape(-1, 2).min(axis=0)).max() * density
+    if extent > _MAX_SIDE or np.sqrt(np.abs(signed_uv_areas(uv)).sum()) * density > _MAX_SIDE:
+        if max_side is not None:
+            return None
+        raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
+                         "unit; lower the target cost or set an explicit resolution")
+    order = np.argsort(face_chart, kind="stable")
+    starts = np.searchsorted(face_chart[order], np.arange(count + 1))
+    bitmaps = []  # per chart: four (rows, spans, origin) for 0..3 quarter turns
+    total = 0
+    for chart in range(count):
+        pixels = uv[order[starts[chart]:starts[chart + 1]]] * density
+        turns = []
+        for turn in range(4):
+            turned = _turn(pixels, turn)
+            grid, origin = _chart_bitmap(turned, grow)
+            turns.append((grid, origin))
+        bitmaps.append(turns)
+        total += int(turns[0][0].sum())
+    sizes = np.array([bitmaps[c][0][0].sum() for c in range(count)])
+    chart_order = np.argsort(-sizes, kind="stable")
+    narrowest = max(min(grid.shape) for grid, _ in (turns[0] for turns in bitmaps))
+    best = None
+    widths = sorted({max(narrowest, int(np.ceil(np.sqrt(total) * factor))) for factor in _WIDTH_FACTORS})
+    if max_side is not None:
+        widths = [w for w in widths if w <= max_side] or [max_side]
+        if narrowest > max_side:
+            return None
+    for width in widths:
+        placed = _place_all(bitmaps, chart_order, width, limit=max_side or _MAX_SIDE)
+        if placed is None:
+            continue
+        positions, chosen, height = placed
+        side = max(width, height)
+        if max_side is not None and side > max_side:
+            continue
+        if best is None or side < best[0]:
+            best = (side, positions, chosen)
+    if best is None:
+        if max_side is None:
+            raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
+                             "unit; lower the target cost or set an explicit resolution")
+        return None
+    side, positions, chosen = best
+    out = np.empty_like(uv)
+    for chart in range(count):
+        rows = order[starts[chart]:starts[chart + 1]]
+        turn = chosen[chart]
+        _, origin = bitmaps[chart][turn]
+        out[rows] = (_turn(uv[rows] * density, turn) - origin + positions[chart]) / side
+    coverage = float(np.abs(signed_uv_areas(out)).sum())
+    return Packing(uv=out, resolution=int(side), turns=np.asarray(chosen, dtype=np.int64),
+                   texels_per_unit=float(density), coverage=coverage)
+
+
+def _turn(points, turn):
+    """``points`` (..., 2) turned by ``turn`` quarter turns counter-clockwise about the origin."""
+    x, y = points[..., 0], points[..., 1]
+    turned = [(x, y), (-y, x), (-x, -y), (y, -x)][turn % 4]
+    return np.stack(turned, axis=-1)
+
+
+def _chart_bitmap(pixels, grow):
+    """The pixels ``pixels``' triangles overlap, grown by ``grow``, with the chart's lower corner moved onto a
+    pixel corner ``grow`` pixels in; the bitmap (rows: v, columns: u) and the chart's offset into it."""
+    low = pixels.reshape(-1, 2).min(axis=0)
+    extent = pixels.reshape(-1, 2).max(axis=0) - low
+    shape = (np.maximum(np.ceil(extent), 1) + 2 * grow).astype(np.int64)
+    grid = np.zeros((shape[1], shape[0]), dtype=np.bool_)
+    origin = low - grow
+    _touch_triangles(pixels - origin, grid, grow)
+    return grid, origin
+
+
+@njit
+def _touch_triangles(pixels, grid, grow):
+    """Mark in ``grid`` every pixel a triangle overlaps, then grow the marks by ``grow`` pixels on every side."""
+    rows, cols = grid.shape
+    touched = np.zeros((rows, cols), dtype=np.bool_)
+    for t in range(pixels.shape[0]):
+        x0, y0 = pixels[t, 0, 0], pixels[t, 0, 1]
+        x1, y1 = pixels[t, 1, 0], pixels[t, 1, 1]
+        x2, y2 = pixels[t, 2, 0], pixels[t, 2, 1]
+        # pixels [c, c + 1) that meet the open interval of the triangle's extent (at least one per axis)
+        cx0 = int(np.floor(min(x0, x1, x2)))
+        cx1 = max(cx0, int(np.ceil(max(x0, x1, x2))) - 1)
+        cy0 = int(np.floor(min(y0, y1, y2)))
+        cy1 = max(cy0, int(np.ceil(max(y0, y1, y2))) - 1)
+        for cy in range(max(cy0, 0), min(cy1, rows - 1) + 1):
+            for cx in range(max(cx0, 0), min(cx1, cols - 1) + 1):
+                if touched[cy, cx]:
+                    continue
+                if _triangle_meets_box(x0, y0, x1, y1, x2, y2, cx, cy):
+                    touched[cy, cx] = True
+    for cy in range(rows):
+        for cx in range(cols):
+            if touched[cy, cx]:
+                for dy in range(max(cy - grow, 0), min(cy + grow, rows - 1) + 1):
+                    for dx in range(max(cx - grow, 0), min(cx + grow, cols - 1) + 1):
+                        grid[dy, dx] = True
+
+
+@njit
+def _triangle_meets_box(x0, y0, x1, y1, x2, y2, bx, by):
+    """Whether the triangle and the unit box ``[bx, bx+1] x [by, by+1]`` overlap in more than their boundaries
+    (separating axes: the box's two axes, which the caller's bounding-box loop covers, and the triangle's edge
+    normals; a degenerate triangle, a segment, meets the boxes its inside crosses)."""
+    xs = (x0, x1, x2)
+    ys = (y0, y1, y2)
+    for e in range(3):
+        ax, ay = xs[e], ys[e]
+        bx_, by_ = xs[(e + 1) % 3], ys[(e + 1) % 3]
+        nx, ny = -(by_ - ay), bx_ - ax  # edge normal (either side)
+        if nx == 0.0 and ny == 0.0:
+            continue
+        # the triangle's projection, and the box's
+        tmin = tmax = nx * xs[0] + ny * ys[0]
+        for k in range(1, 3):
+            value = nx * xs[k] + ny * ys[k]
+            tmin = min(tmin, value)
+            tmax = max(tmax, value)
+        bmin = bmax = nx * bx + ny * by
+        for corner in range(1, 4):
+            value = nx * (bx + (corner & 1)) + ny * (by + (corner >> 1))
+            bmin = min(bmin, value)
+            bmax = max(bmax, value)
+        if bmax <= tmin or bmin >= tmax:
+            return False
+    return True
+
+
+def _place_all(bitmaps, chart_order, width, *, limit):
+    """Bottom-left placement of every chart in a strip ``width`` wide; positions, turns and the used height."""
+    count = len(bitmaps)
+    free_run = _empty_rows(max(64, 2 * width), width)
+    positions = np.zeros((count, 2))
+    chosen = np.zeros(count, dtype=np.int64)
+    used = 0
+    lowest = 0
+    for chart in chart_order:
+        best = None
+        for turn, (grid, _) in enumerate(bitmaps[chart]):
+            rows, cols = grid.shape
+            if cols > width:
+                continue
+            spans = _row_spans(grid)
+            y, x = _first_fit(free_run, spans, rows, cols, lowest)
+            while y < 0 and free_run.shape[0] < limit + rows:  # the strip is full: double it
+                free_run = np.vstack([free_run, _empty_rows(free_run.shape[0], width)])
+                y, x = _first_fit(free_run, spans, rows, cols, lowest)
+            if y < 0:
+                continue
+            key = (y + rows, y, x)
+            if best is None or key < best[0]:
+                best = (key, turn, y, x, spans, rows)
+        if best is None:
+            return None
+        (top, _, _), turn, y, x, spans, rows = best
+        if top > limit:
+            return None
+        _occupy(free_run, spans, rows, y, x)
+        positions[chart] = (x, y)
+        chosen[chart] = turn
+        used = max(used, top)
+        while lowest < free_run.shape[0] and free_run[lowest].max() == 0:
+            lowest += 1
+    return positions, chosen, used
+
+
+def _empty_rows(height, width):
+    """Free runs of ``height`` empty rows: at column ``c``, ``width - c`` free pixels to the right."""
+    return np.repeat(np.arange(width, 0, -1, dtype=np.int32)[None, :], height, axis=0)
+
+
+def _row_spans(grid):
+    """Per row of ``grid``, its runs of marked pixels as (row, start, end) triples, (n, 3) int32."""
+    padded = np.zeros((grid.shape[0], grid.shape[1] + 2), dtype=np.int8)
+    padded[:, 1:-1] = grid
+    change = np.diff(padded, axis=1)
+    rows_start, starts = np.nonzero(change == 1)
+    rows_end, ends = np.nonzero(change == -1)
+    return np.stack([rows_start, starts, ends], axis=1).astype(np.int32)
+
+
+@njit
+def _first_fit(free_run, spans, rows, cols, lowest):
+    """Lowest row, then leftmost column, where every span of the bitmap lands on free pixels; (-1, -1) if none."""
+    height, width = free_run.shape
+    longest = np.zeros(height, dtype=np.int32)  # the longest free run of each row: rows it cannot meet are skipped
+    for y in range(lowest, height):
+        longest[y] = free_run[y].max()
+    for y in range(lowest, height - rows + 1):
+        fits = True
+        for s in range(spans.shape[0]):
+            if longest[y + spans[s, 0]] < spans[s, 2] - spans[s, 1]:
+                fits = False
+                break
+        if not fits:
+            continue
+        x = 0
+        while x <= width - cols:
+            ok = True
+            for s in range(spans.shape[0]):
+                row, start, end = spans[s, 0], spans[s, 1], spans[s, 2]
+                run = free_run[y + row, x + start]
+                if run < end - start:
+                    ok = False
+                    x += run + 1  # the span must start past the occupied pixel that ends this run
+                    break
+            if ok:
+                return y, x
+    return -1, -1
+
+
+@njit
+def _occupy(free_run, spans, rows, y, x):
+    """Mark the bitmap's spans at ``(x, y)`` occupied and recompute the free runs of the rows it touches."""
+    width = free_run.shape[1]
+    for s in range(spans.shape[0]):
+        row, start, end = spans[s, 0], spans[s, 1], spans[s, 2]
+        for c in range(x + start, x + end):
+            free_run[y + row, c] = 0
+    for row in range(rows):
+        line = free_run[y + row]
+        run = 0
+        for c in range(width - 1, -1, -1):
+            if line[c] == 0:
+                run = 0
+            else:
+                run += 1
+                line[c] = run

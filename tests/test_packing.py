@@ -1,0 +1,141 @@
+"""core.packing: charts packed with translations and quarter turns on the image's pixel grid (hand-computed)."""
+import numpy as np
+import pytest
+
+from perceptual_uv.core.packing import pack_charts
+
+QUARTER_TURNS = [np.eye(2), np.array([[0, -1], [1, 0]]), -np.eye(2), np.array([[0, 1], [-1, 0]])]
+
+
+def rectangle(x, y, w, h):
+    """Two triangles covering [x, x + w] x [y, y + h], counter-clockwise."""
+    a, b, c, d = (x, y), (x + w, y), (x + w, y + h), (x, y + h)
+    return [[a, b, c], [a, c, d]]
+
+
+def charts_of(rectangles):
+    uv = np.array([t for r in rectangles for t in rectangle(*r)], dtype=float)
+    face_chart = np.repeat(np.arange(len(rectangles)), 2)
+    return uv, face_chart
+
+
+def chart_motion(before, after):
+    """Scale s and the linear part L / s of the affine map taking a chart's corners ``before`` to ``after``."""
+    p, q = before.reshape(-1, 2), after.reshape(-1, 2)
+    A = np.hstack([p, np.ones((len(p), 1))])
+    solution, *_ = np.linalg.lstsq(A, q, rcond=None)
+    linear = solution[:2].T
+    s = np.sqrt(abs(np.linalg.det(linear)))
+    return s, linear / s
+
+
+def pixel_boxes(packing, face_chart):
+    """Each chart's [min, max] corner in pixels of the packed image."""
+    pixels = packing.uv * packing.resolution
+    return [(pixels[face_chart == c].reshape(-1, 2).min(0), pixels[face_chart == c].reshape(-1, 2).max(0))
+            for c in range(face_chart.max() + 1)]
+
+
+def test_four_unit_squares_at_8_texels_fill_a_16_px_image():
+    # Each chart covers exactly 8 x 8 pixels: 256 pixels, the narrowest strip tried is sqrt(256) = 16 wide.
+    uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])
+    packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=8)
+    assert packing.resolution == 16
+    assert packing.coverage == pytest.approx(1.0)
+    assert packing.texels_per_unit == 8
+    corners = sorted(tuple(np.round(low).astype(int)) for low, _ in pixel_boxes(packing, face_chart))
+    assert corners == [(0, 0), (0, 8), (8, 0), (8, 8)]
+
+
+def test_margin_keeps_charts_that_many_pixels_apart():
+    # margin 2: every chart grows by 1 px on each side, 10 x 10 pixels, four of them in a 20 px square.
+    uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])
+    packing = pack_charts(uv, face_chart, margin=2, texels_per_unit=8)
+    assert packing.resolution == 20
+    boxes = pixel_boxes(packing, face_chart)
+    for i, (low_i, high_i) in enumerate(boxes):
+        assert (low_i >= 1 - 1e-9).all() and (high_i <= 19 + 1e-9).all()  # half a margin to the border
+        for low_j, high_j in boxes[i + 1:]:
+            gap = np.maximum(low_j - high_i, low_i - high_j).max()  # separation along the better axis
+            assert gap >= 2 - 1e-9
+
+
+def test_every_chart_moves_rigidly_with_one_common_scale():
+    rng = np.random.default_rng(3)
+    rectangles = [(rng.uniform(0, 5), rng.uniform(0, 5), rng.uniform(0.2, 2), rng.uniform(0.2, 2)) for _ in range(12)]
+    uv, face_chart = charts_of(rectangles)
+    angles = rng.uniform(0, 2 * np.pi, 12)
+    for c, angle in enumerate(angles):  # charts at arbitrary angles: the packer must not undo them
+        rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        uv[face_chart == c] = uv[face_chart == c] @ rotation.T
+    packing = pack_charts(uv, face_chart, margin=3, texels_per_unit=20)
+    expected_scale = 20 / packing.resolution
+    for c in range(12):
+        scale, turn = chart_motion(uv[face_chart == c], packing.uv[face_chart == c])
+        assert scale == pytest.approx(expected_scale, rel=1e-9)
+        np.testing.assert_allclose(turn, QUARTER_TURNS[packing.turns[c]], atol=1e-9)
+    assert packing.uv.min() >= 0 and packing.uv.max() <= 1
+    area = sum(w * h for _, _, w, h in rectangles) * 20 ** 2 / packing.resolution ** 2
+    assert packing.coverage == pytest.approx(area)
+
+
+def test_a_long_chart_is_laid_along_the_strip():
+    # A 4 x 1 chart beside four unit squares, 8 texels per unit: 512 px, strips from 23 px wide. Upright (8 wide,
+    # 32 tall) it would make the image at least 32 px; lying in a 32 px wide strip it does not fit a 23-27 px
+    # strip either, so every strip ends 32 px tall or wide: the packing is 32 px and holds all five.
+    uv, face_chart = charts_of([(0, 0, 1, 4), (2, 0, 1, 1), (4, 0, 1, 1), (6, 0, 1, 1), (8, 0, 1, 1)])
+    packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=8)
+    assert packing.resolution == 32
+    assert packing.coverage == pytest.approx(8 * 8 * 8 / 32 ** 2)
+
+
+def test_explicit_resolution_fills_the_image_within_two_percent_of_the_best_density():
+    # Four unit squares fit a 32 px image at up to 16 texels per unit, 2 x 2 squares of 16 px; above it a chart
+    # touches 17 pixels per side and two no longer fit side by side.
+    uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])
+    packing = pack_charts(uv, face_chart, margin=0, resolution=32)
+    assert packing.resolution == 32
+    assert 16 / 1.02 < packing.texels_per_unit <= 16
+    assert packing.uv.min() >= 0 and packing.uv.max() == pytest.approx(1.0)  # scaled up to the border
+    assert packing.coverage == pytest.approx(4 * (packing.texels_per_unit / 32) ** 2)
+
+
+def test_explicit_resolution_keeps_the_margin():
+    uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 2), (0, 5, 2, 1), (7, 7, 1, 1), (9, 9, 0.5, 0.5)])
+    packing = pack_charts(uv, face_chart, margin=4, resolution=64)
+    boxes = pixel_boxes(packing, face_chart)
+    for i, (low_i, high_i) in enumerate(boxes):
+        assert (low_i >= 2 - 1e-9).all() and (high_i <= 62 + 1e-9).all()
+        for low_j, high_j in boxes[i + 1:]:
+            assert np.maximum(low_j - high_i, low_i - high_j).max() >= 4 - 1e-9
+
+
+def test_zero_area_triangles_go_with_their_chart():
+    uv, face_chart = charts_of([(0, 0, 1, 1), (2, 0, 1, 1)])
+    sliver = np.array([[[0.5, 0.5], [0.5, 0.5], [0.5, 0.5]]])  # a degenerate triangle inside chart 0
+    uv, face_chart = np.concatenate([uv, sliver]), np.append(face_chart, 0)
+    packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=8)
+    low, high = pixel_boxes(packing, face_chart)[0]
+    point = packing.uv[-1, 0] * packing.resolution
+    assert (point >= low).all() and (point <= high).all()
+    np.testing.assert_allclose(point, low + 4, atol=1e-9)  # the chart's centre
+
+
+@pytest.mark.parametrize("options, message", [
+    ({}, "exactly one"), ({"resolution": 64, "texels_per_unit": 8}, "exactly one"),
+    ({"texels_per_unit": 0}, "positive"), ({"resolution": 0}, "resolution must be"),
+])
+def test_bad_options_are_refused(options, message):
+    uv, face_chart = charts_of([(0, 0, 1, 1)])
+    with pytest.raises(ValueError, match=message):
+        pack_charts(uv, face_chart, margin=0, **options)
+
+
+def test_bad_input_is_refused():
+    uv, face_chart = charts_of([(0, 0, 1, 1)])
+    with pytest.raises(ValueError, match="zero total area"):
+        pack_charts(np.zeros_like(uv), face_chart, margin=0, texels_per_unit=8)
+    with pytest.raises(ValueError, match="labels"):
+        pack_charts(uv, face_chart + 1, margin=0, texels_per_unit=8)
+    with pytest.raises(ValueError, match="larger than 16384"):
+        pack_charts(uv, face_chart, margin=0, texels_per_unit=20000)
