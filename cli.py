@@ -110,6 +110,9 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
                         metavar="N" if workers_flag != "--workers" else None,
                         help="worker processes of one asset's triangle-wise stage (0: one per core)")
     parser.add_argument("--seed", type=int, default=DEFAULTS.seed)
+    parser.add_argument("--fresh", action="store_true",
+                        help="compute the triangle-wise stage again instead of reusing the results an earlier run "
+                             "with the same mesh, UV map, texture and triangle-wise settings kept")
 
 
 def _add_batch_options(batch):
@@ -174,7 +177,7 @@ def _validate(args):
             args.settings = OptimizeSettings(
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
                 screen_pixels=args.screen_pixels, max_screen_pixels=args.max_screen_pixels, margin=args.margin,
-                workers=args.workers, seed=args.seed)
+                workers=args.workers, seed=args.seed, reuse_triangle_results=not args.fresh)
         except ValueError as error:
             raise UsageError(str(error)) from None
     return args

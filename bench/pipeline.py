@@ -201,7 +201,7 @@ def main(argv=None):
     if not args.models:
         parser.error("--models is required")
 
-    settings = {"workers": args.workers}
+    settings = {"workers": args.workers, "reuse_triangle_results": False}
     if args.iterations is not None:
         settings["iterations"] = args.iterations
     models = []

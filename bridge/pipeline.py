@@ -19,8 +19,23 @@ from ..core import cost as texel_cost
 from ..core.progress import RunProgress, format_seconds
 from .material import base_color_image_node
 
-__all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "run_to_end", "target_problem",
-           "loss_ramp", "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE"]
+__all__ = ["Progress", "STAGE_SHARES", "triangle_results", "PipelineResult", "optimize_objects", "run_to_end",
+           "target_problem", "loss_ramp", "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE"]
+
+_TRIANGLE_RESULTS = []
+
+
+def triangle_results():
+    """Triangle-wise results of recent runs, keyed by the stage's inputs, settings and code (in memory and in
+    ``core.result_cache.default_cache_folder()``): a rerun that changes only the cost, margin or names (the redo
+    panel, a second CLI run) skips the stage. Made on first use, so importing this module stays light."""
+    if not _TRIANGLE_RESULTS:
+        from ..core.result_cache import ResultCache, default_cache_folder
+        from ..core.trianglewise import TrianglewiseResult
+
+        _TRIANGLE_RESULTS.append(ResultCache(TrianglewiseResult, folder=default_cache_folder()))
+    return _TRIANGLE_RESULTS[0]
+
 
 LOSS_ATTRIBUTE = "perceptual_loss"
 LOSS_COLOR_ATTRIBUTE = "perceptual_loss_color"
@@ -328,6 +343,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     """
     from ..core.chartfit import iter_fit_charts
     from ..core.loss import above_bound, texture_luma
+    from ..core.result_cache import result_key
     from ..core.ssp import ssp_targets
     from ..core.trianglewise import iter_optimize_triangles, losses_at, losses_of
     from .bake import bake_base_color
@@ -370,11 +386,22 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         per_object = [mesh.object_index == index for index in range(len(objects))]
 
         clock = time.perf_counter()
-        stage = iter_optimize_triangles(V, F, uv_in, luma, epsilon=settings.epsilon,
-                                        evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
-                                        max_screen_pixels=settings.max_screen_pixels,
-                                        workers=settings.workers, seed=settings.seed, faces=faces)
-        triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock, step)
+        key = result_key(V, F, uv_in, luma, faces, epsilon=settings.epsilon, evaluations=settings.iterations,
+                         screen_pixels=settings.screen_pixels, max_screen_pixels=settings.max_screen_pixels,
+                         seed=settings.seed)
+        triangles = triangle_results().get(key) if settings.reuse_triangle_results else None
+        if triangles is None:
+            stage = iter_optimize_triangles(V, F, uv_in, luma, epsilon=settings.epsilon,
+                                            evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
+                                            max_screen_pixels=settings.max_screen_pixels,
+                                            workers=settings.workers, seed=settings.seed, faces=faces)
+            triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock, step)
+            triangle_results().put(key, triangles)
+        else:
+            notes.append("the triangle-wise results of an earlier run on the same mesh, UV map, texture and settings "
+                         "were reused (Clear Cached Results in the sidebar, or --fresh on the command line, "
+                         "computes them again)")
+            yield step("triangle", 1, 1, "Triangle-wise optimization: reused from an earlier run")
         times["triangle"] = time.perf_counter() - clock
         unevaluated = int(np.count_nonzero(triangles.unevaluated))
         if unevaluated:

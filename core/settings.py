@@ -37,6 +37,9 @@ class OptimizeSettings:
         Name of the new image; empty means "<original image>_perceptual".
     use_material_copy : bool
         Assign copies of the materials that sample the new image through the new UV map.
+    reuse_triangle_results : bool
+        Reuse the triangle-wise results of an earlier run on the same mesh, UV map, texture and triangle-wise
+        settings (epsilon, evaluations, view sizes, seed), kept in memory and in a per-user cache folder.
     """
 
     epsilon: float = 0.01
@@ -51,6 +54,7 @@ class OptimizeSettings:
     uv_map_name: str = "PerceptualUV"
     image_name: str = ""
     use_material_copy: bool = True
+    reuse_triangle_results: bool = True
 
     def __post_init__(self):
         checks = [

@@ -58,6 +58,8 @@ def optimize_options(args):
     options += ["--iterations", str(args.iterations), "--screen-pixels", str(args.screen_pixels),
                 "--max-screen-pixels", str(args.max_screen_pixels), "--margin", str(args.margin),
                 "--workers", str(args.workers), "--seed", str(args.seed)]
+    if args.fresh:
+        options.append("--fresh")
     if args.object:
         options += ["--object", args.object]
     if args.uv:

@@ -2,6 +2,7 @@
 """UV editor sidebar tab "Perceptual UV" and the UV menu entry."""
 import bpy
 
+from ..operators.clear_cache import UV_OT_perceptual_clear_cache
 from ..operators.optimize_uvs import UV_OT_perceptual_optimize
 from ..operators.show_loss import UV_OT_perceptual_show_loss
 
@@ -51,3 +52,4 @@ class IMAGE_PT_perceptual_uv(bpy.types.Panel):
             if name != "rna_type" and hasattr(op, name):
                 setattr(op, name, getattr(settings, name))
         layout.operator(UV_OT_perceptual_show_loss.bl_idname, icon="SHADING_SOLID")
+        layout.operator(UV_OT_perceptual_clear_cache.bl_idname, icon="TRASH")

@@ -1,6 +1,7 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Shared fixtures: the bundled and shared model folders, and a clean Blender scene."""
+"""Shared fixtures: the bundled and shared model folders, a clean Blender scene, a private results cache."""
 import pathlib
+import sys
 
 import pytest
 
@@ -43,3 +44,16 @@ def empty_scene():
     """An empty Blender scene for a bpy test (skips without the bpy module)."""
     pytest.importorskip("bpy")
     return reset_blender_scene()
+
+
+@pytest.fixture(autouse=True)
+def private_results_cache(tmp_path_factory, monkeypatch):
+    """Every test gets its own cache of triangle-wise results (in memory and on disk, for its subprocesses too):
+    a test never reuses another test's results, nor the user's."""
+    monkeypatch.setenv("PERCEPTUAL_UV_RESULTS_CACHE", str(tmp_path_factory.mktemp("results_cache")))
+    pipeline = sys.modules.get("perceptual_uv.bridge.pipeline")
+    if pipeline is not None:
+        pipeline._TRIANGLE_RESULTS.clear()
+    yield
+    if pipeline is not None or "perceptual_uv.bridge.pipeline" in sys.modules:
+        sys.modules["perceptual_uv.bridge.pipeline"]._TRIANGLE_RESULTS.clear()

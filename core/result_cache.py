@@ -1,0 +1,159 @@
+"""A cache of a stage's results, in memory and in a folder, keyed by the stage's inputs, settings and code.
+
+The triangle-wise stage takes minutes and depends only on the mesh, its UV map, the texture, a few settings and
+the code of ``core``; the cost, margin and names only change what comes after it. Keeping its result lets the
+redo panel and a second CLI run with another cost rerun the mesh-wise fit, the packing and the bake alone.
+"""
+import collections
+import dataclasses
+import hashlib
+import json
+import os
+import pathlib
+import tempfile
+import time
+
+import numpy as np
+
+from ._jit import cache_dir
+
+__all__ = ["ResultCache", "result_key", "default_cache_folder"]
+
+_CODE_HASH = None
+
+
+def default_cache_folder():
+    """The per-user folder of stage results: ``$PERCEPTUAL_UV_RESULTS_CACHE`` if set, else ``results`` next to
+    numba's cache (:func:`perceptual_uv.core._jit.cache_dir`)."""
+    override = os.environ.get("PERCEPTUAL_UV_RESULTS_CACHE")
+    return pathlib.Path(override) if override else pathlib.Path(cache_dir()).parent / "results"
+
+
+def _code_hash():
+    """SHA-256 of the source of every module of ``core``: a change to any of them invalidates the cache."""
+    global _CODE_HASH
+    if _CODE_HASH is None:
+        digest = hashlib.sha256()
+        for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
+        _CODE_HASH = digest.hexdigest()
+    return _CODE_HASH
+
+
+def result_key(*arrays, **settings):
+    """A key for a result of ``arrays`` under ``settings`` and the current ``core`` code.
+
+    Parameters
+    ----------
+    *arrays : array_like
+        The stage's array inputs (dtype, shape and bytes all count).
+    **settings
+        JSON-serializable settings the result depends on.
+
+    Returns
+    -------
+    str
+        64 hexadecimal digits.
+    """
+    digest = hashlib.sha256(_code_hash().encode())
+    for array in arrays:
+        array = np.ascontiguousarray(array)
+        digest.update(f"{array.dtype.str}{array.shape}".encode())
+        digest.update(array.tobytes())
+    digest.update(json.dumps(settings, sort_keys=True).encode())
+    return digest.hexdigest()
+
+
+class ResultCache:
+    """Results of one dataclass type by key: the last ``memory`` in memory, up to ``files`` in ``folder``.
+
+    Parameters
+    ----------
+    kind : type
+        A dataclass whose fields are arrays, numbers, strings or None.
+    folder : path-like or None
+        Where results are kept across sessions (``<key>.npz``, oldest removed first beyond ``files``); None
+        keeps them in memory only.
+    memory : int
+        Results kept in memory, most recently used first.
+    files : int
+        Results kept in ``folder``.
+    """
+
+    def __init__(self, kind, *, folder=None, memory=2, files=32):
+        self.kind = kind
+        self.folder = pathlib.Path(folder) if folder is not None else None
+        self.memory = memory
+        self.files = files
+        self._recent = collections.OrderedDict()
+
+    def get(self, key):
+        """The result stored under ``key``, or None (an unreadable file counts as missing and is removed)."""
+        if key in self._recent:
+            self._recent.move_to_end(key)
+            return self._recent[key]
+        if self.folder is None:
+            return None
+        path = self.folder / f"{key}.npz"
+        try:
+            with np.load(path, allow_pickle=False) as stored:
+                values = {field.name: self._value(stored, field.name) for field in dataclasses.fields(self.kind)
+                          if field.name in stored.files}
+            result = self.kind(**values)
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, TypeError, KeyError):  # a truncated or foreign file: compute again
+            path.unlink(missing_ok=True)
+            return None
+        os.utime(path)
+        self._remember(key, result)
+        return result
+
+    def put(self, key, result):
+        """Store ``result`` under ``key`` (in memory, and in the folder if it can be written)."""
+        self._remember(key, result)
+        if self.folder is None:
+            return
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            arrays = {field.name: np.asarray(getattr(result, field.name)) for field in dataclasses.fields(result)
+                      if getattr(result, field.name) is not None}
+            with tempfile.NamedTemporaryFile(dir=self.folder, suffix=".partial", delete=False) as handle:
+                np.savez(handle, **arrays)
+            os.replace(handle.name, self.folder / f"{key}.npz")
+            self._trim()
+        except OSError:  # a read-only or full disk costs the next run its time, nothing else
+            pass
+
+    def clear(self):
+        """Forget every result, in memory and in the folder; return the number of files removed."""
+        self._recent.clear()
+        if self.folder is None or not self.folder.is_dir():
+            return 0
+        removed = 0
+        for path in self.folder.glob("*.npz"):
+            path.unlink(missing_ok=True)
+            removed += 1
+        return removed
+
+    def _value(self, stored, name):
+        value = stored[name]
+        return value.item() if value.ndim == 0 else value
+
+    def _remember(self, key, result):
+        self._recent[key] = result
+        self._recent.move_to_end(key)
+        while len(self._recent) > self.memory:
+            self._recent.popitem(last=False)
+
+    def _trim(self):
+        stored = sorted(self.folder.glob("*.npz"), key=lambda path: path.stat().st_mtime)
+        for path in stored[:max(len(stored) - self.files, 0)]:
+            path.unlink(missing_ok=True)
+        for path in self.folder.glob("*.partial"):  # left by a run killed while writing (not one writing now)
+            try:
+                if time.time() - path.stat().st_mtime > 3600:
+                    path.unlink()
+            except FileNotFoundError:
+                pass
