@@ -19,10 +19,13 @@ from .charts import signed_uv_areas
 
 __all__ = ["Packing", "pack_charts"]
 
-# Strip widths tried, as multiples of the square root of the charts' total bitmap area; the narrowest square
-# that holds the packing wins.
-_WIDTH_FACTORS = (1.0, 1.04, 1.08, 1.13, 1.2)
+# Strip widths tried, as multiples of the square root of the charts' total bitmap area (2 % apart); the smallest
+# square that holds the packing wins.
+_WIDTH_FACTORS = tuple(1.02 ** k for k in range(-5, 16))
 _MAX_SIDE = 16384
+# Strips as wide as each side of the largest charts are tried too: with a few large charts the square is set by
+# them, not by the total area.
+_LARGEST_CHARTS = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,21 +112,19 @@ def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None
 def _pack_into(uv, face_chart, count, resolution, margin, area):
     """The densest packing found that fits a ``resolution`` square, scaled up to fill it.
 
-    A packing's side grows about linearly with the density, so one packing gives the density to start from;
-    whether a packing fits is not monotonic in the density, so 1 % steps go down until one fits and a few go up,
-    and the largest density that fits wins. Its layout is then scaled up until the charts reach the far border
+    A packing's side grows about linearly with the density, so one free packing gives the density to start
+    from; each try fills a strip as wide as the image bottom-left and fits if it is no higher; whether a packing fits is not monotonic in the density, so 1 % steps go down from 2 % above it and
+    the first that fits wins. Its layout is then scaled up until the charts reach the far border
     but for half a margin (every gap grows with it).
     """
-    first = _pack_at(uv, face_chart, count, resolution * np.sqrt(0.6 / area), margin, max_side=None)
-    start = first.texels_per_unit * resolution / first.resolution
+    start = resolution * np.sqrt(0.6 / area)
+    free = _pack_at(uv, face_chart, count, start, margin, max_side=None)
+    start *= resolution / free.resolution
     best = None
-    for step in range(-40, 4):
-        if best is not None and step < 0:
-            continue
-        density = start * 1.01 ** step
-        packing = _pack_at(uv, face_chart, count, density, margin, max_side=resolution)
-        if packing is not None and (best is None or density > best.texels_per_unit):
-            best = packing
+    for step in range(2, -41, -1):  # densest first: the first packing that fits wins
+        best = _pack_at(uv, face_chart, count, start * 1.01 ** step, margin, max_side=resolution)
+        if best is not None:
+            break
     if best is None:
         raise ValueError(f"the charts do not fit a {resolution} px image with a {margin} px margin")
     # Scale the layout until the charts reach the far border but for half a margin: every gap grows with it.
@@ -162,11 +163,14 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
     chart_order = np.argsort(-sizes, kind="stable")
     narrowest = max(min(grid.shape) for grid, _ in (turns[0] for turns in bitmaps))
     best = None
-    widths = sorted({max(narrowest, int(np.ceil(np.sqrt(total) * factor))) for factor in _WIDTH_FACTORS})
-    if max_side is not None:
-        widths = [w for w in widths if w <= max_side] or [max_side]
+    widths = {int(np.ceil(np.sqrt(total) * factor)) for factor in _WIDTH_FACTORS}
+    for chart in chart_order[:_LARGEST_CHARTS]:  # a few large charts: a strip as wide as one of them
+        widths.update(bitmaps[chart][0][0].shape)
+    widths = sorted({max(narrowest, width) for width in widths})
+    if max_side is not None:  # a strip as wide as the image, as high as it at most
         if narrowest > max_side:
             return None
+        widths = [max_side]
     for width in widths:
         placed = _place_all(bitmaps, chart_order, width, limit=max_side or _MAX_SIDE)
         if placed is None:
@@ -177,6 +181,8 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
             continue
         if best is None or side < best[0]:
             best = (side, positions, chosen)
+        if max_side is not None:  # a packing that fits is all an explicit resolution needs
+            break
     if best is None:
         if max_side is None:
             raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
