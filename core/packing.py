@@ -19,13 +19,7 @@ from .charts import signed_uv_areas
 
 __all__ = ["Packing", "pack_charts"]
 
-# Strip widths tried, as multiples of the square root of the charts' total bitmap area (2 % apart); the smallest
-# square that holds the packing wins.
-_WIDTH_FACTORS = tuple(1.02 ** k for k in range(-5, 16))
 _MAX_SIDE = 16384
-# Strips as wide as each side of the largest charts are tried too: with a few large charts the square is set by
-# them, not by the total area.
-_LARGEST_CHARTS = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,21 +106,40 @@ def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None
 def _pack_into(uv, face_chart, count, resolution, margin, area):
     """The densest packing found that fits a ``resolution`` square, scaled up to fill it.
 
-    A packing's side grows about linearly with the density, so one free packing gives the density to start
-    from; each try fills a strip as wide as the image bottom-left and fits if it is no higher; whether a packing fits is not monotonic in the density, so 1 % steps go down from 2 % above it and
-    the first that fits wins. Its layout is then scaled up until the charts reach the far border
-    but for half a margin (every gap grows with it).
+    Each try fills a strip as wide as the image bottom-left and fits if it is no higher. The density moves in
+    5 % steps from a 60 % coverage guess until one try fits and the next does not, then 1 % steps go down from
+    the one that did not (whether a packing fits is not monotonic in the density) and the first that fits wins.
+    Its layout is then scaled up until the charts reach the far border but for half a margin (every gap grows
+    with it).
     """
-    start = resolution * np.sqrt(0.6 / area)
-    free = _pack_at(uv, face_chart, count, start, margin, max_side=None)
-    start *= resolution / free.resolution
-    best = None
-    for step in range(2, -41, -1):  # densest first: the first packing that fits wins
-        best = _pack_at(uv, face_chart, count, start * 1.01 ** step, margin, max_side=resolution)
-        if best is not None:
+    def attempt(density):
+        return _pack_at(uv, face_chart, count, density, margin, max_side=resolution)
+
+    density = resolution * np.sqrt(0.6 / area)
+    best = attempt(density)
+    too_dense = None
+    for _ in range(100):
+        if best is None:  # shrink until a try fits
+            too_dense, density = density, density / 1.05
+            best = attempt(density)
+            continue
+        if too_dense is not None:
             break
+        larger = attempt(density * 1.05)  # grow until a try does not fit
+        if larger is None:
+            too_dense = density * 1.05
+        else:
+            density, best = density * 1.05, larger
     if best is None:
         raise ValueError(f"the charts do not fit a {resolution} px image with a {margin} px margin")
+    for step in range(1, 5):
+        candidate = too_dense / 1.01 ** step
+        if candidate <= density:
+            break
+        finer = attempt(candidate)
+        if finer is not None:
+            best = finer
+            break
     # Scale the layout until the charts reach the far border but for half a margin: every gap grows with it.
     reach = best.uv.max() * best.resolution
     scale = (resolution - (margin + 1) // 2) / reach if reach > 0 else 1.0
@@ -138,7 +151,7 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
 
 
 def _pack_at(uv, face_chart, count, density, margin, *, max_side):
-    """Pack at ``density``; the smallest square over the strip widths, or None if that is larger than ``max_side``."""
+    """Pack at ``density`` into the smallest square found, or into ``max_side`` (None if the charts do not fit)."""
     grow = (margin + 1) // 2
     extent = (uv.reshape(-1, 2).max(axis=0) - uv.reshape(-1, 2).min(axis=0)).max() * density
     if extent > _MAX_SIDE or np.sqrt(np.abs(signed_uv_areas(uv)).sum()) * density > _MAX_SIDE:
@@ -162,32 +175,21 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
     sizes = np.array([bitmaps[c][0][0].sum() for c in range(count)])
     chart_order = np.argsort(-sizes, kind="stable")
     narrowest = max(min(grid.shape) for grid, _ in (turns[0] for turns in bitmaps))
-    best = None
-    widths = {int(np.ceil(np.sqrt(total) * factor)) for factor in _WIDTH_FACTORS}
-    for chart in chart_order[:_LARGEST_CHARTS]:  # a few large charts: a strip as wide as one of them
-        widths.update(bitmaps[chart][0][0].shape)
-    widths = sorted({max(narrowest, width) for width in widths})
-    if max_side is not None:  # a strip as wide as the image, as high as it at most
-        if narrowest > max_side:
+    def square(side):  # a strip ``side`` wide filled bottom-left; the packing if it is no higher
+        if side < narrowest or side > _MAX_SIDE:
             return None
-        widths = [max_side]
-    for width in widths:
-        placed = _place_all(bitmaps, chart_order, width, limit=max_side or _MAX_SIDE)
-        if placed is None:
-            continue
-        positions, chosen, height = placed
-        side = max(width, height)
-        if max_side is not None and side > max_side:
-            continue
-        if best is None or side < best[0]:
-            best = (side, positions, chosen)
-        if max_side is not None:  # a packing that fits is all an explicit resolution needs
-            break
-    if best is None:
-        if max_side is None:
+        placed = _place_all(bitmaps, chart_order, side, limit=side)
+        return None if placed is None else (side,) + placed[:2]
+
+    if max_side is not None:
+        best = square(max_side)
+        if best is None:
+            return None
+    else:
+        best = _smallest_square(square, max(narrowest, int(np.ceil(np.sqrt(total)))))
+        if best is None:
             raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
                              "unit; lower the target cost or set an explicit resolution")
-        return None
     side, positions, chosen = best
     out = np.empty_like(uv)
     for chart in range(count):
@@ -198,6 +200,34 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
     coverage = float(np.abs(signed_uv_areas(out)).sum())
     return Packing(uv=out, resolution=int(side), turns=np.asarray(chosen, dtype=np.int64),
                    texels_per_unit=float(density), coverage=coverage)
+
+
+def _smallest_square(square, start):
+    """The smallest side found for which ``square(side)`` fits: 5 % steps from ``start`` until one side fits
+    and the one below does not, then 1 % steps up from that one (fitting is not monotonic in the side)."""
+    side, best, too_small = start, square(start), None
+    for _ in range(200):
+        if best is None:  # grow until a side fits
+            too_small, side = side, max(side + 1, int(np.ceil(side * 1.05)))
+            if side > _MAX_SIDE:
+                return None
+            best = square(side)
+            continue
+        if too_small is not None:
+            break
+        smaller = square(min(side - 1, int(side / 1.05)))  # shrink until a side does not fit
+        if smaller is None:
+            too_small = min(side - 1, int(side / 1.05))
+        else:
+            side, best = smaller[0], smaller
+    for step in range(1, 5):
+        candidate = int(np.ceil(too_small * 1.01 ** step))
+        if candidate >= side:
+            break
+        finer = square(candidate)
+        if finer is not None:
+            return finer
+    return best
 
 
 def _turn(points, turn):
