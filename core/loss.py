@@ -36,6 +36,13 @@ arrays only (picklable; the numba kernels are module functions), ~165 KB per tri
 predate the window faces (step 2): a sliver's view now holds the panel around it instead of a thin line, so it
 costs like a well-shaped triangle's of the same window; the whole triangle-wise stage on wooden_bookshelf
 (2 workers) went from 131 s to 499 s, on spot it stayed at about 30 s.
+
+A material's maps: every function here that takes ``luma`` also takes a stack of scalar planes, each at its
+own resolution (:func:`.loss_planes.loss_planes` builds them: colour through luma, data per channel,
+tangent-space normals through their shading). Each plane is prepared on its own texel grid with the same views;
+a triangle's E is the largest of its planes' (:class:`.loss_planes.StackProblem`); planes of one shape share
+the operator's assembly and factorization (:mod:`.loss_stack`), a plane constant under a view is not rendered.
+One plane (a 2-D array, or a list of one) is the single-map path above, bit for bit.
 """
 import dataclasses
 from dataclasses import dataclass
@@ -48,12 +55,13 @@ from .bake_lsq import (DEFAULT_RIDGE, _apply_renumber, _band_cholesky_solve, _en
                        _solve_normal_equations)
 from .camera import triangle_cameras
 from .charts import texel_areas
-from .gmsd import (GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, _pooled_index, covered_gmsd,
-                   luma as _to_luma)
+from .gmsd import GMSD_C, _covered_gmsd_kernel, _covered_gradient_kernel, _pooled_index, covered_gmsd
+from .loss_planes import StackBatch, StackProblem, texture_luma, texture_planes
 from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
 from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
 
-__all__ = ["VIEW_FACES", "TriangleProblem", "TriangleBatch", "texture_luma", "textured_triangles", "above_bound",
+__all__ = ["VIEW_FACES", "TriangleProblem", "TriangleBatch", "StackProblem", "StackBatch", "texture_luma",
+           "texture_planes", "textured_triangles", "above_bound",
            "triangle_problem", "prepare_triangles", "render_reference"]
 
 #: Which faces a triangle's view draws: ``"window"`` (default) the one-ring and the faces connected to it that
@@ -63,25 +71,6 @@ VIEW_FACES = ("window", "one_ring")
 
 
 
-def texture_luma(texture):
-    """Luma of a texture for the loss: (h, w) passes through, (h, w, c) -> Rec. 601 luma.
-
-    Parameters
-    ----------
-    texture : (h, w) or (h, w, c) array_like in [0, 1], row 0 = bottom (v = 0)
-
-    Returns
-    -------
-    (h, w) ndarray of float64, C-contiguous
-    """
-    texture = np.asarray(texture, dtype=np.float64)
-    if texture.ndim not in (2, 3):
-        raise ValueError(f"texture must have shape (h, w) or (h, w, c), got {texture.shape}")
-    if texture.shape[0] < 1 or texture.shape[1] < 1:
-        raise ValueError(f"texture is empty: {texture.shape}")
-    return np.ascontiguousarray(_to_luma(texture, channel_axis=-1 if texture.ndim == 3 else None))
-
-
 def above_bound(uv, luma, epsilon, **losses):
     """Fractions of the textured triangles whose loss E exceeds epsilon, for each named set of losses.
 
@@ -89,8 +78,8 @@ def above_bound(uv, luma, epsilon, **losses):
     ----------
     uv : (k, 3, 2) array_like of float64
         Input per-corner UVs of the triangles the losses belong to.
-    luma : (h, w) or (h, w, c) array_like
-        Their texture.
+    luma : (h, w) or (h, w, c) array_like, or sequence of (h_i, w_i) ndarrays
+        Their texture, or the stack of planes the losses were measured on (:func:`.loss_planes.texture_planes`).
     epsilon : float
         The bound of Eq. 7.
     **losses : (k,) array_like of float
@@ -128,28 +117,32 @@ def textured_triangles(uv, luma):
     ----------
     uv : (m, 3, 2) array_like of float64
         Per-corner UVs.
-    luma : (h, w) or (h, w, c) array_like
-        Texture (row 0 = bottom), as for :func:`prepare_triangles`; it repeats outside ``[0, 1]^2``.
+    luma : (h, w) or (h, w, c) array_like, or sequence of (h_i, w_i) ndarrays
+        Texture (row 0 = bottom), as for :func:`prepare_triangles`, or a stack of planes each on its own texel
+        grid (:func:`.loss_planes.texture_planes`); it repeats outside ``[0, 1]^2``.
 
     Returns
     -------
     (m,) ndarray of bool
-        False where one value fills every texel any point of the triangle reads (constant texture, or a
-        triangle inside a flat area whose neighbours may differ).
+        False where, in every plane, one value fills every texel any point of the triangle reads (constant
+        texture, or a triangle inside a flat area whose neighbours may differ).
 
     Notes
     -----
     Exact for bilinear lookups: texel ``t`` is read when some point of the triangle lies less than one texel
     from its centre in both axes.
     """
-    luma = texture_luma(luma)
+    planes = texture_planes(luma)
     uv = np.asarray(uv, dtype=np.float64)
     if uv.ndim != 3 or uv.shape[1:] != (3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2), got {uv.shape}")
     if not np.isfinite(uv).all():
         raise ValueError("uv must be finite")
-    h, w = luma.shape
-    return _textured_kernel(luma, np.ascontiguousarray(uv * np.array([w, h], dtype=np.float64)))
+    textured = np.zeros(len(uv), dtype=bool)
+    for plane in planes:
+        h, w = plane.shape
+        textured |= _textured_kernel(plane, np.ascontiguousarray(uv * np.array([w, h], dtype=np.float64)))
+    return textured
 
 
 def _check_inputs(V, F, uv):
@@ -926,8 +919,10 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
     F : (m, 3) array_like of int64
     uv : (m, 3, 2) array_like of float64
         Input per-corner UVs (``psi^``).
-    luma : (h, w) or (h, w, c) array_like
-        Texture (row 0 = bottom) at its own resolution; colour is reduced to luma (:func:`texture_luma`).
+    luma : (h, w) or (h, w, c) array_like, or sequence of (h_i, w_i) ndarrays
+        Texture (row 0 = bottom) at its own resolution; colour is reduced to luma (:func:`texture_luma`). A
+        sequence is a stack of planes, each at its own resolution (:func:`.loss_planes.texture_planes`,
+        :func:`.loss_planes.loss_planes`): every plane is prepared on its own texel grid with the same views.
     faces : (k,) array_like of int, optional
         Triangles to prepare; all by default. Memory is about ``n^2 * 40`` bytes per triangle (165 KB at
         n = 64): prepare large meshes in chunks (e.g. per worker task).
@@ -950,14 +945,23 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
 
     Returns
     -------
-    TriangleBatch
+    TriangleBatch or StackBatch
+        A :class:`StackBatch` (E the largest of the planes', :class:`.loss_planes.StackProblem`) for two planes
+        or more; one plane gives the single-map :class:`TriangleBatch`.
 
     References
     ----------
     Sun et al. 2022, Sec. 4.1.1 (text after Eq. 6), App. A.
     """
     V, F, uv = _check_inputs(V, F, uv)
-    luma = texture_luma(luma)
+    planes = texture_planes(luma)
+    if len(planes) > 1:
+        if adjacency is None:
+            adjacency = one_ring_faces(F, V=V)
+        return StackBatch(tuple(prepare_triangles(V, F, uv, plane, faces, screen_pixels=screen_pixels,
+                                                  adjacency=adjacency, ridge=ridge, view_faces=view_faces)
+                                for plane in planes))
+    luma = planes[0]
     if int(screen_pixels) != screen_pixels or screen_pixels < 2 or screen_pixels % 2:
         raise ValueError(f"screen_pixels must be an even integer >= 2, got {screen_pixels}")
     if not ridge > 0:
@@ -1012,7 +1016,7 @@ def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, 
 
     Returns
     -------
-    TriangleProblem
+    TriangleProblem or StackProblem
         ``problem.evaluate(params)`` maps (k, 4) rows ``(alpha, lambda1, lambda2, beta)`` to (k,) E values.
     """
     return prepare_triangles(V, F, uv, luma, [face], screen_pixels=screen_pixels, adjacency=adjacency,

@@ -55,8 +55,8 @@ Decisions (the paper leaves them open):
   so weights of different triangles are comparable) in ``[lambda_min, 1]^2 x [0, pi/2)``. These 24
   evaluations are counted in ``evaluations``.
 * Constant views (``problem.is_constant``: every texel any allowed deformation can read has the same
-  luma, so ``E = 0`` exactly) skip the optimization: ``(0, lambda_min, lambda_min, 0)``, ``E = 0``,
-  ``w_R = w_S = 0``, no evaluation.
+  luma, in every plane of a stack, so ``E = 0`` exactly) skip the optimization:
+  ``(0, lambda_min, lambda_min, 0)``, ``E = 0``, ``w_R = w_S = 0``, no evaluation.
 * Determinism: each triangle's optimizer is seeded by ``(seed, face)``, so results do not depend on the
   number of workers or on how faces are split into chunks.
 * Workers are spawned processes that receive the mesh arrays once and face-index chunks afterwards. Inside
@@ -93,7 +93,8 @@ import numpy as np
 from . import bayesopt
 from .camera import texel_matched_pixels
 from .charts import texel_areas
-from .loss import _check_view_faces, prepare_triangles, texture_luma, textured_triangles
+from .loss import _check_view_faces, prepare_triangles, textured_triangles
+from .loss_planes import texture_planes
 from .one_ring import one_ring_faces
 from .progress import run_generator
 
@@ -425,10 +426,11 @@ class TrianglewiseResult:
         ----------
         uv : (m, 3, 2) array_like of float64
             The input per-corner UVs the stage ran on (rows :attr:`faces` are used).
-        luma : (h, w) or (h, w, c) array_like
-            Its texture, as given to :func:`optimize_triangles`.
+        luma : (h, w) or (h, w, c) array_like, or sequence of (h_i, w_i) ndarrays
+            Its texture or stack of planes, as given to :func:`optimize_triangles`.
         min_texels : float, optional
-            Texel area a textured triangle keeps when both stretches sit at the floor (0: no floor).
+            Texel area a textured triangle keeps when both stretches sit at the floor (0: no floor). With a
+            stack, the texels are those of the densest plane in which the triangle is textured.
         signal_targets : (m, 4) array_like of float64, optional
             Signal stretch's targets of every face of the mesh (rows as ``uv``), as
             :func:`.ssp.ssp_targets` gives them. ``None``: the stage's own areas only.
@@ -490,7 +492,7 @@ class TrianglewiseResult:
             raise ValueError(f"min_texels must be a non-negative number, got {min_texels}")
         if not 0 <= signal_weight <= 1:
             raise ValueError(f"signal_weight must be in [0, 1], got {signal_weight}")
-        luma = texture_luma(luma)
+        planes = texture_planes(luma)
         uv = np.asarray(uv, dtype=np.float64)
         if uv.ndim != 3 or uv.shape[1:] != (3, 2) or (len(self.faces) and self.faces.max() >= len(uv)):
             raise ValueError(f"uv must have shape (m, 3, 2) with a row for every face of the result, got "
@@ -505,8 +507,14 @@ class TrianglewiseResult:
         if min_texels == 0 and not blend:
             return params
         uv = uv[self.faces]
-        area = texel_areas(uv, luma.shape[1], luma.shape[0])
-        textured = textured_triangles(uv, luma) & ~self.unevaluated
+        area = texel_areas(uv, planes[0].shape[1], planes[0].shape[0])
+        textured = textured_triangles(uv, planes[0])
+        for plane in planes[1:]:
+            # A stack: the floor counts texels of the densest plane in which the triangle is textured.
+            own, own_area = textured_triangles(uv, plane), texel_areas(uv, plane.shape[1], plane.shape[0])
+            area = np.where(own & (~textured | (own_area > area)), own_area, area)
+            textured |= own
+        textured &= ~self.unevaluated
         if min_texels > 0:
             with np.errstate(divide="ignore"):
                 floor = np.minimum(1.0, np.sqrt(min_texels / area))
@@ -598,11 +606,16 @@ def _prepared(state, faces):
 
 
 def _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, options, view_faces="window"):
-    """What the workers share: the mesh, the texture, the one-rings, every face's view size and which faces
-    the views draw (:data:`.loss.VIEW_FACES`)."""
+    """What the workers share: the mesh, the texture (a tuple of planes), the one-rings, every face's view size
+    (one pixel per texel of the densest plane, :func:`.camera.texel_matched_pixels`) and which faces the views
+    draw (:data:`.loss.VIEW_FACES`)."""
     view_pixels = np.zeros(len(F), dtype=np.int64)
-    view_pixels[faces] = texel_matched_pixels(V, F, uv, luma.shape, faces, minimum=screen_pixels,
+    planes = texture_planes(luma)
+    view_pixels[faces] = texel_matched_pixels(V, F, uv, planes[0].shape, faces, minimum=screen_pixels,
                                               maximum=max_screen_pixels)
+    for plane in planes[1:]:  # a stack: one pixel per texel of its densest plane
+        view_pixels[faces] = np.maximum(view_pixels[faces], texel_matched_pixels(
+            V, F, uv, plane.shape, faces, minimum=screen_pixels, maximum=max_screen_pixels))
     return {"V": V, "F": F, "uv": uv, "luma": luma, "adjacency": one_ring_faces(F, V=V),
             "view_pixels": view_pixels, "view_faces": _check_view_faces(view_faces), "options": options}
 
@@ -792,9 +805,7 @@ def _check_mesh(V, F, uv, luma, faces):
     uv = np.ascontiguousarray(uv, dtype=np.float64)
     if uv.shape != (len(F), 3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2) = {(len(F), 3, 2)}, got {uv.shape}")
-    from .loss import texture_luma
-
-    luma = texture_luma(luma)
+    luma = texture_planes(luma)
     faces = np.arange(len(F), dtype=np.int64) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)
     if faces.size and (faces.min() < 0 or faces.max() >= len(F)):
         raise ValueError(f"faces must be indices in 0..{len(F) - 1}")
@@ -849,8 +860,11 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
     F : (m, 3) array_like of int64
     uv : (m, 3, 2) array_like of float64
         Input per-corner UVs.
-    luma : (h, w) or (h, w, c) array_like in [0, 1]
-        Texture, row 0 = bottom; colour is reduced to Rec. 601 luma.
+    luma : (h, w) or (h, w, c) array_like in [0, 1], or sequence of (h_i, w_i) ndarrays
+        Texture, row 0 = bottom; colour is reduced to Rec. 601 luma. A sequence is a stack of planes, each at its
+        own resolution (:func:`.loss_planes.loss_planes` builds one from a material's maps): a triangle's E is
+        the largest of its planes' (:class:`.loss_planes.StackProblem`), the parameters act in the first
+        plane's texel frame, and each view gets one pixel per texel of the densest plane.
     epsilon : float, optional
         Bound on the per-triangle perceptual loss (GMSD), the paper's 0.01.
     evaluations : int, optional
@@ -915,7 +929,8 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
     """Triangle-wise loss E of a new UV map, each triangle measured with its own deformation.
 
     The deformation of triangle ``i`` is the affine map from its input UVs to ``new_uv`` (in texel units of
-    the input texture, the translation ignored as in Eq. 14); E is the loss of Sec. 4.1.1 with that Jacobian.
+    the input texture, the first plane's for a stack; the translation ignored as in Eq. 14); E is the loss of
+    Sec. 4.1.1 with that Jacobian (the largest plane's for a stack).
 
     Parameters
     ----------
@@ -941,7 +956,7 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
     new_uv = np.asarray(new_uv, dtype=np.float64)
     if new_uv.shape != uv.shape:
         raise ValueError(f"new_uv must have the shape of uv {uv.shape}, got {new_uv.shape}")
-    h, w = luma.shape
+    h, w = luma[0].shape  # the parameters' texel frame: the first plane's (:mod:`.loss_planes`)
     scale = np.array([w, h], dtype=np.float64)
     old_edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=-1) * scale[:, None]
     new_edges = np.stack([new_uv[:, 1] - new_uv[:, 0], new_uv[:, 2] - new_uv[:, 0]], axis=-1) * scale[:, None]
