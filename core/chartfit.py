@@ -14,6 +14,8 @@ texture, the frame of the triangle-wise targets, so a texture that is not square
 """
 from dataclasses import dataclass
 
+import inspect
+
 import numpy as np
 
 from .charts import UVTopology, uv_topology
@@ -83,7 +85,16 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
             yield index * steps + done, 2 * steps
         fitted, restored = restore_folded_charts(uv, fit.uv, chart, tolerance=fold_tolerance)
         fitted, angles = orient_charts(uv, fitted, chart, targets[:, 0], w_R, texel_scale=texel_scale)
-        losses = np.asarray(measure(fitted), dtype=np.float64)
+        measured = measure(fitted)
+        if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs
+            while True:
+                try:
+                    next(measured)
+                except StopIteration as finished:
+                    measured = finished.value
+                    break
+                yield (index + 1) * steps - 1, 2 * steps
+        losses = np.asarray(measured, dtype=np.float64)
         if losses.shape != (len(uv),):
             raise ValueError(f"measure must return one loss per face, shape ({len(uv)},), got {losses.shape}")
         candidates.append((fit, fitted, restored, angles, losses))
@@ -121,7 +132,9 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
         of the second fit and the chart turns of both.
     measure : callable
         ``measure(uv_new) -> (m,)`` loss of every triangle under the new UVs (e.g.
-        :func:`.trianglewise.losses_at`; 0 for triangles it need not judge). Called once per fit.
+        :func:`.trianglewise.losses_at`; 0 for triangles it need not judge). Called once per fit. It may
+        return a generator instead (e.g. :func:`.trianglewise.iter_losses_at`), whose return value is the
+        losses: the fit yields while it runs, so a long measurement does not hold up a modal operator.
     texel_scale : (2,) array_like of float, optional
         Texels per UV unit of the input texture along u and v, ``(w, h)``: both fits
         (:func:`.meshwise.solve_meshwise`) and the chart turns (:func:`.meshwise.orient_charts`) meet the

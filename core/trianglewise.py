@@ -100,12 +100,15 @@ from .progress import run_generator
 
 __all__ = ["WorkerDiedError", "LossNotEvaluableError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS",
            "SIGNAL_WEIGHT", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
-           "optimize_triangle", "iter_optimize_triangles", "optimize_triangles", "losses_at", "losses_of"]
+           "optimize_triangle", "iter_optimize_triangles", "optimize_triangles", "iter_losses_at", "losses_at",
+           "iter_losses_of", "losses_of", "WAIT_SECONDS"]
 
 LAMBDA_MIN = 0.1
 _IDENTITY = np.array([0.0, 1.0, 1.0, 0.0])
 _IDENTITY.setflags(write=False)  # shared by every call: a write would change every later triangle's start
 MAX_SCREEN_PIXELS = 256
+# Longest wait for worker results before a stage's generator hands control back (the modal operator's tick).
+WAIT_SECONDS = 0.1
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
@@ -761,7 +764,8 @@ def _chunks(faces, size):
 
 
 def _run_chunks(kind, state, faces, workers, chunk_size):
-    """Yield ``(faces, output)`` per chunk, in worker processes or here; ``(done, total)`` progress between."""
+    """Yield ``(faces, output)`` per chunk, in worker processes or here, and None every ``WAIT_SECONDS`` while
+    the workers have nothing new."""
     chunks = _chunks(faces, chunk_size)
     if workers == 0:
         workers = os.cpu_count() or 1
@@ -781,12 +785,13 @@ def _run_chunks(kind, state, faces, workers, chunk_size):
         for _ in chunks:
             while True:
                 try:
-                    output = results.next(timeout=1.0)
+                    output = results.next(timeout=WAIT_SECONDS)
                     break
                 except multiprocessing.TimeoutError:
                     if {process.pid for process in pool._pool} != original_workers:
                         raise WorkerDiedError("a worker process of the triangle-wise stage died (out of memory or "
                                            "killed?); run again with fewer workers") from None
+                    yield None  # nothing finished yet: the caller gets control back (a modal operator's tick)
             yield output
         pool.close()
         pool.join()
@@ -839,7 +844,11 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
     done = 0
     yield done, total
     with contextlib.closing(_run_chunks("optimize", state, faces, int(workers), int(chunk_size))) as chunks:
-        for chunk, rows in chunks:
+        for item in chunks:
+            if item is None:
+                yield done, total
+                continue
+            chunk, rows = item
             for face, row in zip(chunk, rows):
                 i = row_of[int(face)]
                 params[i], loss[i], w_R[i], w_S[i], used[i], feasible[i], constant[i], unevaluated[i] = row
@@ -924,6 +933,30 @@ def _params_from_jacobians(J):
     return np.column_stack([alpha, eigenvalues[:, 1], eigenvalues[:, 0], beta])
 
 
+def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
+                   workers=1, chunk_size=64, view_faces="window"):
+    """Generator form of :func:`losses_at`: yields ``(done, total)`` faces (again every ``WAIT_SECONDS`` while
+    workers compute), returns the losses."""
+    V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
+    new_uv = np.asarray(new_uv, dtype=np.float64)
+    if new_uv.shape != uv.shape:
+        raise ValueError(f"new_uv must have the shape of uv {uv.shape}, got {new_uv.shape}")
+    h, w = luma[0].shape  # the parameters' texel frame: the first plane's (:mod:`.loss_planes`)
+    scale = np.array([w, h], dtype=np.float64)
+    old_edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=-1) * scale[:, None]
+    new_edges = np.stack([new_uv[:, 1] - new_uv[:, 0], new_uv[:, 2] - new_uv[:, 0]], axis=-1) * scale[:, None]
+    old_det = np.linalg.det(old_edges)
+    valid = np.abs(old_det) > 1e-12 * np.maximum(np.abs(old_edges).max(axis=(1, 2)) ** 2, 1e-300)
+    J = np.zeros_like(old_edges)
+    J[valid] = new_edges[valid] @ np.linalg.inv(old_edges[valid])
+    valid &= np.linalg.det(J) > 0
+    params = np.full((len(F), 4), np.inf)
+    if valid.any():
+        params[valid] = _params_from_jacobians(J[valid])
+    return (yield from _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers,
+                                    chunk_size, view_faces))
+
+
 def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
               workers=1, chunk_size=64, view_faces="window"):
     """Triangle-wise loss E of a new UV map, each triangle measured with its own deformation.
@@ -952,24 +985,23 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
     (k,) ndarray
         E per face; ``inf`` where the new triangle is flipped or degenerate, or the input one degenerate.
     """
+    return run_generator(iter_losses_at(V, F, uv, luma, new_uv, screen_pixels=screen_pixels,
+                                        max_screen_pixels=max_screen_pixels, faces=faces, workers=workers,
+                                        chunk_size=chunk_size, view_faces=view_faces))
+
+
+def iter_losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
+                   workers=1, chunk_size=64, view_faces="window"):
+    """Generator form of :func:`losses_of`: yields ``(done, total)`` faces (again every ``WAIT_SECONDS`` while
+    workers compute), returns the losses."""
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
-    new_uv = np.asarray(new_uv, dtype=np.float64)
-    if new_uv.shape != uv.shape:
-        raise ValueError(f"new_uv must have the shape of uv {uv.shape}, got {new_uv.shape}")
-    h, w = luma[0].shape  # the parameters' texel frame: the first plane's (:mod:`.loss_planes`)
-    scale = np.array([w, h], dtype=np.float64)
-    old_edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=-1) * scale[:, None]
-    new_edges = np.stack([new_uv[:, 1] - new_uv[:, 0], new_uv[:, 2] - new_uv[:, 0]], axis=-1) * scale[:, None]
-    old_det = np.linalg.det(old_edges)
-    valid = np.abs(old_det) > 1e-12 * np.maximum(np.abs(old_edges).max(axis=(1, 2)) ** 2, 1e-300)
-    J = np.zeros_like(old_edges)
-    J[valid] = new_edges[valid] @ np.linalg.inv(old_edges[valid])
-    valid &= np.linalg.det(J) > 0
-    params = np.full((len(F), 4), np.inf)
-    if valid.any():
-        params[valid] = _params_from_jacobians(J[valid])
-    return _losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
-                   view_faces)
+    params = np.asarray(params, dtype=np.float64)
+    if params.shape != (len(faces), 4):
+        raise ValueError(f"params must have shape {(len(faces), 4)}, a row per face, got {params.shape}")
+    every = np.full((len(F), 4), np.inf)
+    every[faces] = params
+    return (yield from _iter_losses(V, F, uv, luma, every, faces, screen_pixels, max_screen_pixels, workers,
+                                    chunk_size, view_faces))
 
 
 def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
@@ -990,25 +1022,27 @@ def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX
     (k,) ndarray
         E per face; ``inf`` where a row of ``params`` is not finite or E cannot be evaluated.
     """
-    V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
-    params = np.asarray(params, dtype=np.float64)
-    if params.shape != (len(faces), 4):
-        raise ValueError(f"params must have shape {(len(faces), 4)}, a row per face, got {params.shape}")
-    every = np.full((len(F), 4), np.inf)
-    every[faces] = params
-    return _losses(V, F, uv, luma, every, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
-                   view_faces)
+    return run_generator(iter_losses_of(V, F, uv, luma, params, screen_pixels=screen_pixels,
+                                        max_screen_pixels=max_screen_pixels, faces=faces, workers=workers,
+                                        chunk_size=chunk_size, view_faces=view_faces))
 
 
-def _losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
-            view_faces="window"):
-    """E of ``params`` (m, 4), a row per face of the mesh, at ``faces``, in worker processes."""
+def _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
+                 view_faces="window"):
+    """E of ``params`` (m, 4), a row per face of the mesh, at ``faces``, in worker processes; yields
+    ``(done, total)`` faces and returns the losses."""
     state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, {"params": params[:, None, :]},
                    view_faces)
     out = np.empty(len(faces))
     row_of = {int(face): row for row, face in enumerate(faces)}
+    done = 0
+    yield done, len(faces)
     with contextlib.closing(_run_chunks("losses", state, faces, int(workers), int(chunk_size))) as chunks:
-        for chunk, values in chunks:
-            for face, value in zip(chunk, values):
-                out[row_of[int(face)]] = value
+        for item in chunks:
+            if item is not None:
+                chunk, values = item
+                for face, value in zip(chunk, values):
+                    out[row_of[int(face)]] = value
+                done += len(chunk)
+            yield done, len(faces)
     return out

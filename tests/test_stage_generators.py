@@ -1,0 +1,80 @@
+"""Stages as generators that hand control back while worker processes compute (no long step in Blender)."""
+import numpy as np
+
+from perceptual_uv.core import trianglewise as tw
+from perceptual_uv.core.chartfit import fit_charts, iter_fit_charts
+from perceptual_uv.core.progress import run_generator
+
+SIZE = 64
+
+
+def grid_mesh(cells=2):
+    t = np.linspace(0.0, 1.0, cells + 1)
+    X, Y = np.meshgrid(t, t)
+    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    F = []
+    for i in range(cells):
+        for j in range(cells):
+            a = i * (cells + 1) + j
+            F += [[a, a + 1, a + cells + 2], [a, a + cells + 2, a + cells + 1]]
+    F = np.array(F, dtype=np.int64)
+    return V, F, (0.25 + 0.5 * V[:, :2])[F]
+
+
+def texture():
+    y, x = np.mgrid[0:SIZE, 0:SIZE] + 0.5
+    return 0.5 + 0.25 * np.sin(2 * np.pi * x / 9.0) * np.cos(2 * np.pi * y / 13.0)
+
+
+def test_iter_losses_yield_face_counts_and_return_the_losses():
+    V, F, uv = grid_mesh()
+    new_uv = 0.5 + 0.6 * (uv - 0.5)
+    progress = []
+    losses = run_generator(tw.iter_losses_at(V, F, uv, texture(), new_uv, workers=1, chunk_size=3),
+                           lambda *step: progress.append(step))
+    assert progress == [(0, 8), (3, 8), (6, 8), (8, 8)]
+    np.testing.assert_array_equal(losses, tw.losses_at(V, F, uv, texture(), new_uv))
+    params = np.tile([0.0, 0.7, 0.6, 0.0], (8, 1))
+    progress = []
+    losses = run_generator(tw.iter_losses_of(V, F, uv, texture(), params, workers=1, chunk_size=4),
+                           lambda *step: progress.append(step))
+    assert progress == [(0, 8), (4, 8), (8, 8)]
+    np.testing.assert_array_equal(losses, tw.losses_of(V, F, uv, texture(), params))
+
+
+def test_waiting_for_workers_yields_the_same_progress_again(monkeypatch):
+    # A wait far shorter than any chunk: the generator must come back with unchanged progress while it waits.
+    monkeypatch.setattr(tw, "WAIT_SECONDS", 1e-4)
+    V, F, uv = grid_mesh()
+    progress = []
+    result = run_generator(tw.iter_optimize_triangles(V, F, uv, texture(), evaluations=10, workers=2,
+                                                      chunk_size=4), lambda *step: progress.append(step))
+    assert progress[0] == (0, 8) and progress[-1] == (8, 8)
+    assert any(a == b for a, b in zip(progress, progress[1:]))  # heartbeats: the same count twice in a row
+    assert [done for done, _ in progress] == sorted(done for done, _ in progress)
+    serial = tw.optimize_triangles(V, F, uv, texture(), evaluations=10, workers=1)
+    np.testing.assert_array_equal(result.params, serial.params)
+
+
+def test_fit_charts_drives_a_generator_measure_to_the_same_result():
+    V, F, uv = grid_mesh()
+    targets = np.tile([0.1, 0.8, 0.7, 0.0], (8, 1))
+    weights = np.full(8, 1e-3)
+    calls = []
+
+    def measure(new_uv):
+        return tw.losses_at(V, F, uv, texture(), new_uv)
+
+    def measure_stepwise(new_uv):
+        calls.append(len(calls))
+        return (yield from tw.iter_losses_at(V, F, uv, texture(), new_uv, chunk_size=2))
+
+    plain = fit_charts(F, uv, targets, weights, weights, measure=measure)
+    steps = []
+    stepwise = run_generator(iter_fit_charts(F, uv, targets, weights, weights, measure=measure_stepwise),
+                             lambda *step: steps.append(step))
+    assert calls == [0, 1]  # once per fit
+    np.testing.assert_array_equal(stepwise.uv, plain.uv)
+    np.testing.assert_array_equal(stepwise.losses, plain.losses)
+    total = steps[-1][1]
+    assert steps[-1][0] == total and len(steps) > 2 * 5  # the measurements' steps came through
