@@ -36,7 +36,7 @@ def _import_package_from_file():
 if __name__ == "__main__" and not __package__:  # blender -b FILE --python cli.py -- ARGS
     sys.exit(_import_package_from_file().main(blender_argv(sys.argv)))
 
-from .core.settings import OptimizeSettings  # noqa: E402  (after the script bootstrap above)
+from .core.settings import COST_ROLES, OptimizeSettings  # noqa: E402  (after the script bootstrap above)
 
 MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj")
 OUTPUT_SUFFIXES = (".blend", ".glb")
@@ -80,6 +80,15 @@ def _costs(text):
     return costs
 
 
+def _role_cost(text):
+    """``ROLE=COST`` of ``--cost-for`` as a (role, cost) pair; the settings check the role and the range."""
+    role, equals, cost = text.partition("=")
+    try:
+        return role.strip(), float(cost)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ROLE=COST (e.g. normal=0.2), not {text!r}") from None
+
+
 def _add_optimize_options(parser, *, workers_flag="--workers"):
     """The options ``optimize`` and ``batch`` share: which object and UV map, and the optimization settings.
 
@@ -106,6 +115,10 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
                         help=f"largest per-triangle view size (default {DEFAULTS.max_screen_pixels}; lower it "
                              "to bound the time on large textures)")
     parser.add_argument("--margin", type=int, default=DEFAULTS.margin, help="island margin in pixels")
+    parser.add_argument("--cost-for", dest="cost_for", action="append", type=_role_cost, default=[],
+                        metavar="ROLE=COST",
+                        help="relative cost of one kind of map instead of --cost's, e.g. normal=0.2 (repeatable; "
+                             "roles: " + ", ".join(COST_ROLES) + ")")
     parser.add_argument(workers_flag, dest="workers", type=int, default=DEFAULTS.workers,
                         metavar="N" if workers_flag != "--workers" else None,
                         help="worker processes of one asset's triangle-wise stage (0: one per core)")
@@ -177,7 +190,8 @@ def _validate(args):
             args.settings = OptimizeSettings(
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
                 screen_pixels=args.screen_pixels, max_screen_pixels=args.max_screen_pixels, margin=args.margin,
-                workers=args.workers, seed=args.seed, reuse_triangle_results=not args.fresh)
+                workers=args.workers, seed=args.seed, reuse_triangle_results=not args.fresh,
+                role_costs=tuple(args.cost_for))
         except ValueError as error:
             raise UsageError(str(error)) from None
     return args

@@ -1,5 +1,12 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Bake an object's base-colour texture from one UV map into a new image on another (Cycles, CPU).
+"""Bake a material's maps from one UV map into new images on another (Cycles, CPU; DESIGN decision 6).
+
+Colour and data maps (base colour, emissive, metallic-roughness / ORM, occlusion, object- and world-space normal
+maps, any other data) are copied value for value: an Emission shader emits the stored values of the original
+image (a Non-Color float copy) through the original UV map and Cycles bakes EMIT. A tangent-space normal map is
+expressed in its UV map's tangent frame, which the new UV map changes: it is baked as NORMAL (tangent space) from
+a temporary copy of the original material, so the shading normal is the one the material shows, into the tangent
+frame of the new UV map (MikkTSpace, as Blender and glTF viewers compute it).
 
 Everything happens on temporary copies in a temporary scene: the object, its mesh, materials, images and the
 user's scene settings are left exactly as they were; the only thing that stays is the new image.
@@ -11,6 +18,8 @@ whose centres no triangle covers (thin strips, charts smaller than a texel) then
 triangle's nearest point, and the margin extends from all of these.
 """
 import contextlib
+import dataclasses
+import functools
 
 import bpy
 import numpy as np
@@ -18,10 +27,11 @@ import scipy.ndimage
 
 from ..core.footprint import footprint_texels
 from ..core.raster import sample_bilinear
-from .material import base_color_image_node
+from .material import base_color_image_node, read_object_materials
 from .mesh_io import read_image, read_mesh
 
-__all__ = ["bake_base_color", "MAX_TILES"]
+__all__ = ["bake_base_color", "bake_maps", "BakeResult", "localize_node_groups", "bake_kind", "has_transform",
+           "transform_problem", "MAX_TILES"]
 
 MAX_TILES = 64
 
@@ -34,10 +44,10 @@ def _temporary_ids():
         yield created
     finally:
         for block in reversed(created):
-            collection = {bpy.types.Object: bpy.data.objects, bpy.types.Mesh: bpy.data.meshes,
-                          bpy.types.Material: bpy.data.materials, bpy.types.Image: bpy.data.images,
-                          bpy.types.Scene: bpy.data.scenes}[type(block)]
             with contextlib.suppress(ReferenceError):
+                collection = {bpy.types.Object: bpy.data.objects, bpy.types.Mesh: bpy.data.meshes,
+                              bpy.types.Material: bpy.data.materials, bpy.types.Image: bpy.data.images,
+                              bpy.types.Scene: bpy.data.scenes}.get(type(block), bpy.data.node_groups)
                 collection.remove(block)
 
 
@@ -147,12 +157,38 @@ def _touched_tiles(objects, target_uv, resolution):
     return sorted(tiles, key=lambda tile: (tile != (0, 0), tile))
 
 
-def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel, tiles=((0, 0),)):
+def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel, tiles=((0, 0),), sources=None):
     """Bake one channel group ("COLOR" or "ALPHA") of ``objects`` into a float (r, r, 4) array.
 
-    ``tiles`` lists the integer UV tiles of ``target_uv`` to bake, tile (0, 0) first when present. Cycles
-    writes the covered texels; the texels bilinear lookups read next to a triangle get the source colour of the
-    triangle's nearest point (:func:`_fill_footprints`), and the margin extends from both (:func:`_extend_margin`).
+    ``sources`` gives, per object and material slot, (image or None, constant RGBA) to emit; by default each
+    slot's base-colour image. ``tiles`` lists the integer UV tiles of ``target_uv`` to bake, tile (0, 0) first
+    when present. Cycles writes the covered texels; the texels bilinear lookups read next to a triangle get the
+    source colour of the triangle's nearest point (:func:`_fill_footprints`), and the margin extends from both
+    (:func:`_extend_margin`).
+    """
+    if sources is None:
+        sources = [_slot_sources(obj) for obj in objects]
+
+    def material_for(created, object_index, slot_index, target):
+        image, constant = sources[object_index][slot_index]
+        return _emission_material(created, source_uv, image, constant, channel, target)
+
+    pixels, covered = _bake_pass(objects, material_for, source_uv=source_uv, target_uv=target_uv,
+                                 resolution=resolution, tiles=tiles, bake_type="EMIT",
+                                 slots=[len(slot_sources) for slot_sources in sources])
+    _fill_footprints(pixels, covered, objects, source_uv=source_uv, target_uv=target_uv, channel=channel,
+                     sources=sources)
+    _extend_margin(pixels, covered, margin)
+    return pixels
+
+
+def _bake_pass(objects, material_for, *, source_uv, target_uv, resolution, tiles, bake_type, slots):
+    """One Cycles bake of ``objects`` (proxies in a temporary scene) into (r, r, 4) pixels and the covered texels.
+
+    ``material_for(created, object_index, slot_index, target)`` gives each proxy slot its material, with an
+    Image Texture node holding ``target`` active. ``bake_type`` "EMIT", or "NORMAL" (tangent space: the proxies'
+    active UV map, whose tangents Blender uses, is the target map; the render UV map, which image nodes without
+    coordinates read, is ``source_uv``).
     """
     with _temporary_ids() as created:
         target = bpy.data.images.new("perceptual_uv_bake_target", resolution, resolution, alpha=False,
@@ -166,8 +202,7 @@ def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel,
         scene.cycles.samples = 1
         view_layer = scene.view_layers[0]
         proxies = []
-        for obj in objects:
-            sources = _slot_sources(obj)
+        for object_index, obj in enumerate(objects):
             mesh = obj.data.copy()
             created.append(mesh)
             proxy = bpy.data.objects.new("perceptual_uv_bake", mesh)
@@ -178,25 +213,23 @@ def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel,
             proxy.select_set(True, view_layer=view_layer)
             if not mesh.materials:
                 mesh.materials.append(None)
-            for index, (image, constant) in enumerate(sources[:len(mesh.materials)]):
-                mesh.materials[index] = _emission_material(created, source_uv, image, constant, channel, target)
+            for slot_index in range(min(slots[object_index], len(mesh.materials))):
+                mesh.materials[slot_index] = material_for(created, object_index, slot_index, target)
         view_layer.objects.active = proxies[0]
+        options = dict(normal_space="TANGENT") if bake_type == "NORMAL" else {}
 
         def bake(uv_layer):
             with bpy.context.temp_override(scene=scene, view_layer=view_layer, active_object=proxies[0],
                                            object=proxies[0], selected_objects=proxies,
                                            selected_editable_objects=proxies):
-                bpy.ops.object.bake(type="EMIT", uv_layer=uv_layer, margin=0, use_clear=False,
-                                    target="IMAGE_TEXTURES")
+                bpy.ops.object.bake(type=bake_type, uv_layer=uv_layer, margin=0, use_clear=False,
+                                    target="IMAGE_TEXTURES", **options)
             pixels = np.empty(resolution * resolution * 4, dtype=np.float32)
             target.pixels.foreach_get(pixels)
             return pixels.reshape(resolution, resolution, 4)
 
-        pixels, covered = _bake_tiles(bake, target, [proxy.data for proxy in proxies], source_uv=source_uv,
-                                      target_uv=target_uv, tiles=tiles)
-    _fill_footprints(pixels, covered, objects, source_uv=source_uv, target_uv=target_uv, channel=channel)
-    _extend_margin(pixels, covered, margin)
-    return pixels
+        return _bake_tiles(bake, target, [proxy.data for proxy in proxies], source_uv=source_uv,
+                           target_uv=target_uv, tiles=tiles, tangent_from_target=bake_type == "NORMAL")
 
 
 _TILE_UV = "perceptual_uv_bake_tile"
@@ -205,7 +238,7 @@ _TILE_UV = "perceptual_uv_bake_tile"
 _UNWRITTEN = -1.0
 
 
-def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, tiles):
+def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, tiles, tangent_from_target=False):
     """Bake each tile of ``target_uv`` shifted into the unit square and composite the tiles (see _bake_channel).
 
     Returns the (r, r, 4) pixels, black and opaque where no tile wrote, and the (r, r) texels written.
@@ -223,6 +256,11 @@ def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, tiles):
         for name in [layer.name for layer in mesh.uv_layers if layer.name != source_uv]:
             mesh.uv_layers.remove(mesh.uv_layers[name])
         mesh.uv_layers.new(name=_TILE_UV)
+        # Image nodes of a material copy without coordinates read the render UV map: the source map.
+        mesh.uv_layers[source_uv].active_render = True
+        if tangent_from_target:
+            # Tangents (MikkTSpace) of the shifted target map are those of the target map: a shift keeps them.
+            mesh.uv_layers.active = mesh.uv_layers[_TILE_UV]
     resolution = target.size[0]
     pixels = np.zeros((resolution, resolution, 4), dtype=np.float32)
     pixels[..., 3] = 1.0  # what use_clear leaves outside the islands and the margin
@@ -240,7 +278,7 @@ def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, tiles):
     return pixels, covered
 
 
-def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel):
+def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel, sources=None):
     """Give the texels bilinear lookups read next to a triangle, but Cycles left empty, their source colour.
 
     Cycles writes a texel only if its centre lies in a triangle, so a strip narrower than a texel, or a chart
@@ -250,11 +288,13 @@ def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel)
     values; the constant Base Color for slots without an image). ``pixels`` and ``covered`` are updated.
     """
     meshes = [read_mesh(obj, uv_name=target_uv) for obj in objects]
+    if sources is None:
+        sources = [_slot_sources(obj) for obj in objects]
     rows, columns, face, bary = footprint_texels(np.concatenate([mesh.uv for mesh in meshes]), covered)
     if not len(face):
         return
     start = 0
-    for obj, mesh in zip(objects, meshes):
+    for obj, mesh, object_sources in zip(objects, meshes, sources):
         mine = (face >= start) & (face < start + len(mesh.F))
         local = face[mine] - start
         start += len(mesh.F)
@@ -262,12 +302,11 @@ def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel)
             continue
         source = read_mesh(obj, uv_name=source_uv).uv
         points = np.einsum("pk,pkd->pd", bary[mine], source[local])
-        sources = _slot_sources(obj)
         # Blender clamps material indices beyond the last slot to the last slot
-        slot = np.clip(mesh.material_index[local], 0, len(sources) - 1)
+        slot = np.clip(mesh.material_index[local], 0, len(object_sources) - 1)
         values = np.empty((len(local), 4), dtype=np.float32)
         for index in np.unique(slot):
-            image, constant = sources[index]
+            image, constant = object_sources[index]
             here = slot == index
             if image is None:
                 values[here] = constant
@@ -337,16 +376,7 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
         A missing UV map, a non-mesh object, or a target map spanning more than :data:`MAX_TILES` tiles.
     """
     objects = list(objects)
-    for obj in objects:
-        if obj.type != "MESH":
-            raise ValueError(f"'{obj.name}' is not a mesh")
-        for name in (source_uv, target_uv):
-            if name not in obj.data.uv_layers:
-                raise ValueError(f"'{obj.name}' has no UV map '{name}'")
-    tiles = _touched_tiles(objects, target_uv, resolution)
-    if len(tiles) > MAX_TILES:
-        raise ValueError(f"UV map '{target_uv}' spans {len(tiles)} texture tiles (at most {MAX_TILES} are baked, one "
-                         f"Cycles bake each): bake onto a UV map inside [0, 1], e.g. a packed copy")
+    tiles = _check_objects(objects, source_uv, target_uv, resolution)
     common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=margin, tiles=tiles)
     pixels = _bake_channel(objects, channel="COLOR", **common)
     sources = [image for obj in objects for image, _ in _slot_sources(obj) if image is not None]
@@ -362,3 +392,336 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
     image.pixels.foreach_set(np.clip(pixels, 0.0, 1.0).ravel())
     image.update()
     return image
+
+
+# ---- every map of a material -----------------------------------------------------------------------------------
+
+def bake_kind(record):
+    """How a map is baked: ``"normal"`` (a tangent-space normal map, Cycles NORMAL) or ``"emit"`` (values copied)."""
+    return "normal" if record.kind == "tangent_normal" else "emit"
+
+
+# What a slot that does not read a map contributes to that map's image, per role (a slot without a base-colour
+# image bakes its constant Base Color instead, as bake_base_color does).
+_NEUTRAL = {"alpha": (1.0, 1.0, 1.0, 1.0), "occlusion": (1.0, 1.0, 1.0, 1.0),
+            "normal_object": (0.5, 0.5, 1.0, 1.0), "normal_world": (0.5, 0.5, 1.0, 1.0)}
+
+
+@dataclasses.dataclass
+class BakeResult:
+    """One baked map: the new ``image``, the source map ``record`` it replaces, and how it was baked.
+
+    Attributes
+    ----------
+    image : bpy.types.Image
+    record : perceptual_uv.bridge.material_roles.MaterialMap
+    kind : str
+        ``"emit"`` or ``"normal"`` (:func:`bake_kind`).
+    alpha : bool
+        True when the alpha channel was baked too (the source uses alpha).
+    """
+
+    image: object
+    record: object
+    kind: str
+    alpha: bool
+
+
+def _reading_records(obj, record, source_uv):
+    """Per material slot of ``obj``: the slot's own record of ``record.image`` baked the same way, or None."""
+    readings = read_object_materials(obj, source_uv=source_uv) if obj.material_slots else []
+    kind = bake_kind(record)
+    return [next((other for other in reading.maps if other.image == record.image and bake_kind(other) == kind),
+                 None) for reading in readings] or [None]
+
+
+def _reads(obj, record, source_uv):
+    """Per material slot of ``obj``: True when the slot's material reads ``record.image`` the way it is baked."""
+    return [other is not None for other in _reading_records(obj, record, source_uv)]
+
+
+TRANSFORM_NOTE = "(a texture transform)"
+
+
+def has_transform(record):
+    """True when the map's coordinates pass through a texture transform (a Mapping node, vector math, ...)."""
+    return any(TRANSFORM_NOTE in note for note in record.notes)
+
+
+def transform_problem(record):
+    """Why a map read through a texture transform cannot be baked (a sentence), or None.
+
+    Such a map is baked through its own Image Texture node and coordinates in a copy of its material, which
+    needs the node at the material's top level (not inside a node group).
+    """
+    if has_transform(record) and not all(node.id_data.is_embedded_data for node in record.nodes):
+        return "its coordinates pass through a texture transform inside a node group"
+    return None
+
+
+def _transformed_emission(created, material, node_name, channel, target):
+    """A copy of ``material`` that emits what its Image Texture node ``node_name`` reads (stored values, through
+    the node's own coordinates, texture transform included); the target node active."""
+    copy = material.copy()
+    created.append(copy)
+    tree = copy.node_tree
+    node = tree.nodes[node_name]
+    raw = _raw_copy(node.image)
+    created.append(raw)
+    node.image = raw
+    for output in [output for output in tree.nodes if output.type == "OUTPUT_MATERIAL"]:
+        tree.nodes.remove(output)
+    emission = tree.nodes.new("ShaderNodeEmission")
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    output.is_active_output = True
+    tree.links.new(emission.outputs["Emission"], output.inputs["Surface"])
+    tree.links.new(node.outputs["Alpha" if channel == "ALPHA" else "Color"], emission.inputs["Color"])
+    target_node = tree.nodes.new("ShaderNodeTexImage")
+    target_node.image = target
+    tree.nodes.active = target_node
+    return copy
+
+
+def _bake_transformed(objects, record, sources, *, source_uv, target_uv, resolution, margin, channel, tiles):
+    """:func:`_bake_channel` for a map read through a texture transform: each slot that reads it emits through a
+    copy of its material's own node and coordinates. The texels next to a triangle that Cycles leaves empty are
+    covered by the margin (the footprint fill reads untransformed coordinates)."""
+    per_slot = [_reading_records(obj, record, source_uv) for obj in objects]
+
+    def material_for(created, object_index, slot_index, target):
+        own = per_slot[object_index][slot_index]
+        if own is None:
+            image, constant = sources[object_index][slot_index]
+            return _emission_material(created, source_uv, image, constant, channel, target)
+        material = objects[object_index].material_slots[slot_index].material
+        return _transformed_emission(created, material, own.nodes[0].name, channel, target)
+
+    pixels, covered = _bake_pass(objects, material_for, source_uv=source_uv, target_uv=target_uv,
+                                 resolution=resolution, tiles=tiles, bake_type="EMIT",
+                                 slots=[len(slot_records) for slot_records in per_slot])
+    _extend_margin(pixels, covered, margin)
+    return pixels
+
+
+def _map_sources(objects, record, source_uv):
+    """(image or None, constant RGBA) per object and slot, for the EMIT bake of ``record``."""
+    sources = []
+    for obj in objects:
+        defaults = _slot_sources(obj) if record.role == "base_color" else None
+        neutral = _NEUTRAL.get(record.role, (0.0, 0.0, 0.0, 1.0))
+        sources.append([(record.image, None) if reads else (None, defaults[index][1] if defaults else neutral)
+                        for index, reads in enumerate(_reads(obj, record, source_uv))])
+    return sources
+
+
+def localize_node_groups(tree, created, *, wanted=("TEX_IMAGE", "NORMAL_MAP", "UVMAP", "TEX_COORD")):
+    """Give every Group node of ``tree`` whose group holds a node of a ``wanted`` type its own copy of the group.
+
+    Material copies share their node groups with the original; a node changed inside a shared group would change
+    the original too. Nested groups are localized the same way. The new groups are appended to ``created``.
+
+    Returns
+    -------
+    bool
+        True when ``tree`` (or a group inside it) holds a node of a ``wanted`` type.
+    """
+    found = False
+    for node in tree.nodes:
+        if node.type in wanted:
+            found = True
+        elif node.type == "GROUP" and node.node_tree is not None and _holds(node.node_tree, wanted):
+            group = node.node_tree.copy()
+            created.append(group)
+            node.node_tree = group
+            localize_node_groups(group, created, wanted=wanted)
+            found = True
+    return found
+
+
+def _holds(tree, wanted):
+    return any(node.type in wanted or (node.type == "GROUP" and node.node_tree is not None
+                                       and _holds(node.node_tree, wanted)) for node in tree.nodes)
+
+
+def _all_nodes(tree):
+    for node in tree.nodes:
+        yield node
+        if node.type == "GROUP" and node.node_tree is not None:
+            yield from _all_nodes(node.node_tree)
+
+
+def _upstream_image(socket):
+    """The image of the Image Texture node linked into ``socket`` (through reroutes), or None."""
+    for link in socket.links:
+        node = link.from_node
+        if node.type == "REROUTE":
+            return _upstream_image(node.inputs[0])
+        if node.type == "TEX_IMAGE":
+            return node.image
+    return None
+
+
+def _normal_material(created, material, source_uv, target, image):
+    """A temporary copy of ``material`` whose shading normal is the one ``image`` gives through its Normal Map
+    node (tangents of ``source_uv``); an Image Texture node holding ``target`` is active.
+
+    When the material's top level has a tangent-space Normal Map node fed by ``image``, the copy's output is a
+    Diffuse BSDF with that node's normal, so a bump or another normal map chained after it is not baked in (the
+    material copy keeps applying those); otherwise the whole material shades. None gives a plain material (the
+    mesh's own normals).
+    """
+    if material is None:
+        copy = bpy.data.materials.new("perceptual_uv_bake_normal")
+        created.append(copy)
+    else:
+        copy = material.copy()
+        created.append(copy)
+        localize_node_groups(copy.node_tree, created)
+        for node in _all_nodes(copy.node_tree):
+            # An empty UV map means the render UV map; the bake's proxy makes that the source map, but the tangent
+            # frame is named explicitly so it can never follow the target map.
+            if node.type == "NORMAL_MAP" and node.space == "TANGENT" and node.uv_map in ("", source_uv):
+                node.uv_map = source_uv
+        tree = copy.node_tree
+        normal_map = next((node for node in tree.nodes if node.type == "NORMAL_MAP" and node.space == "TANGENT"
+                           and not node.mute and _upstream_image(node.inputs["Color"]) == image), None)
+        if normal_map is not None:
+            for node in [node for node in tree.nodes if node.type == "OUTPUT_MATERIAL"]:
+                tree.nodes.remove(node)
+            output = tree.nodes.new("ShaderNodeOutputMaterial")
+            diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
+            tree.links.new(normal_map.outputs["Normal"], diffuse.inputs["Normal"])
+            tree.links.new(diffuse.outputs["BSDF"], output.inputs["Surface"])
+            output.is_active_output = True
+    tree = copy.node_tree
+    target_node = tree.nodes.new("ShaderNodeTexImage")
+    target_node.image = target
+    tree.nodes.active = target_node
+    return copy
+
+
+def _bake_normal(objects, record, *, source_uv, target_uv, resolution, margin, tiles):
+    """Bake the shading normals of the slots that read ``record`` as a tangent-space normal map on ``target_uv``.
+
+    Texels next to a triangle that Cycles leaves empty are not filled from the source (its values are in the
+    source map's tangent frame); the margin, from the nearest written texel, covers them.
+    """
+    reads = [_reads(obj, record, source_uv) for obj in objects]
+
+    def material_for(created, object_index, slot_index, target):
+        slots = objects[object_index].material_slots
+        material = slots[slot_index].material if reads[object_index][slot_index] else None
+        return _normal_material(created, material, source_uv, target, record.image)
+
+    pixels, covered = _bake_pass(objects, material_for, source_uv=source_uv, target_uv=target_uv,
+                                 resolution=resolution, tiles=tiles, bake_type="NORMAL",
+                                 slots=[len(slot_reads) for slot_reads in reads])
+    pixels[~covered, :3] = (0.5, 0.5, 1.0)  # flat, where no triangle and no margin reaches
+    pixels[..., 3] = 1.0
+    _extend_margin(pixels, covered, margin)
+    return pixels
+
+
+def _check_objects(objects, source_uv, target_uv, resolution):
+    for obj in objects:
+        if obj.type != "MESH":
+            raise ValueError(f"'{obj.name}' is not a mesh")
+        for name in (source_uv, target_uv):
+            if name not in obj.data.uv_layers:
+                raise ValueError(f"'{obj.name}' has no UV map '{name}'")
+    tiles = _touched_tiles(objects, target_uv, resolution)
+    if len(tiles) > MAX_TILES:
+        raise ValueError(f"UV map '{target_uv}' spans {len(tiles)} texture tiles (at most {MAX_TILES} are baked, one "
+                         f"Cycles bake each): bake onto a UV map inside [0, 1], e.g. a packed copy")
+    return tiles
+
+
+def _new_image(name, pixels, *, alpha, use_float, like=None):
+    """A new image holding ``pixels`` (clipped to [0, 1]); the colour space follows ``like`` (a source image).
+
+    The colour space is set before the pixels: setting it afterwards reloads a generated image's buffer.
+    """
+    resolution = pixels.shape[0]
+    image = bpy.data.images.new(name, resolution, resolution, alpha=alpha, float_buffer=use_float)
+    if like is not None and like.colorspace_settings.is_data:
+        image.colorspace_settings.name = "Non-Color"
+    elif like is not None and not use_float:
+        with contextlib.suppress(TypeError):
+            image.colorspace_settings.name = like.colorspace_settings.name
+    image.pixels.foreach_set(np.clip(pixels, 0.0, 1.0).ravel())
+    image.update()
+    return image
+
+
+def bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, names):
+    """Bake every map in ``maps`` from ``source_uv`` into a new image on ``target_uv``.
+
+    Parameters
+    ----------
+    objects : sequence of bpy.types.Object
+        Mesh objects whose materials read the maps (several objects share each new image: an atlas).
+    maps : sequence of perceptual_uv.bridge.material_roles.MaterialMap
+        One record per new image (``bridge.material.read_object_materials``); every slot whose material reads
+        the record's image the same way (tangent-space normal map, or not) contributes to that image. Slots that
+        do not read it bake a neutral value (their constant Base Color for a base-colour map, white for alpha and
+        occlusion, flat for normal maps, black otherwise).
+    source_uv, target_uv : str
+        The UV map the maps are read through, and the one the new images are written on.
+    resolutions : sequence of int
+        Side of each new (square) image.
+    margin : int or sequence of int
+        Bake margin in pixels of each new image (extended from the island borders, across the image edges).
+    names : sequence of str
+        Name of each new image (Blender makes names unique).
+
+    Returns
+    -------
+    list of BakeResult
+        In the order of ``maps``. Colour and data maps (``kind`` "emit"): the bilinear samples of the source's
+        stored values (read Non-Color, without a colour transform), clipped to [0, 1]; 8-bit for 8-bit sources
+        (a re-bake on the same layout is exact within one 8-bit step per channel), float for 16-bit and float
+        sources, in the source's colour space; alpha baked when the source uses it; a packed
+        occlusion-roughness-metallic image stays one image with all its channels. Tangent-space normal maps
+        (``kind`` "normal"): Cycles' NORMAL bake in tangent space (+X, +Y, +Z) of the shading normal of a
+        temporary copy of the original material (its Normal Map node reads the tangents of ``source_uv``), in
+        the MikkTSpace frame of ``target_uv``; Non-Color, 8-bit or float as the source.
+
+    Raises
+    ------
+    ValueError
+        A missing UV map, a non-mesh object, a target map spanning more than :data:`MAX_TILES` tiles, or lengths
+        that do not match.
+    """
+    objects, maps = list(objects), list(maps)
+    resolutions, names = list(resolutions), list(names)
+    margins = list(margin) if np.ndim(margin) else [int(margin)] * len(maps)
+    if not len(maps) == len(resolutions) == len(names) == len(margins):
+        raise ValueError(f"{len(maps)} maps need as many resolutions, names and margins (got {len(resolutions)}, "
+                         f"{len(names)}, {len(margins)})")
+    results = []
+    for record, resolution, name, map_margin in zip(maps, resolutions, names, margins):
+        resolution = int(resolution)
+        tiles = _check_objects(objects, source_uv, target_uv, resolution)
+        common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=int(map_margin),
+                      tiles=tiles)
+        kind = bake_kind(record)
+        if kind == "normal":
+            pixels, use_alpha = _bake_normal(objects, record, **common), False
+        else:
+            sources = _map_sources(objects, record, source_uv)
+            if has_transform(record):
+                problem = transform_problem(record)
+                if problem:
+                    raise ValueError(f"map '{record.image.name}' cannot be baked: {problem}")
+                bake = functools.partial(_bake_transformed, objects, record, sources, **common)
+            else:
+                bake = functools.partial(_bake_channel, objects, sources=sources, **common)
+            pixels = bake(channel="COLOR")
+            use_alpha = _has_alpha(record.image)
+            if use_alpha:
+                pixels[..., 3] = bake(channel="ALPHA")[..., 0]
+            else:
+                pixels[..., 3] = 1.0
+        image = _new_image(name, pixels, alpha=use_alpha, use_float=record.image.is_float, like=record.image)
+        results.append(BakeResult(image=image, record=record, kind=kind, alpha=use_alpha))
+    return results

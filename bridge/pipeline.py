@@ -3,9 +3,14 @@
 
 ``optimize_objects(objects, settings)`` is driven one slice at a time by the modal operator (one ``next`` per
 timer tick), run to the end by ``execute`` and by the batch CLI, and closed (``.close()``) to cancel: whatever
-it created so far (UV map, image, material copies, face attribute) is removed again, so a cancelled or failed
-run leaves the file exactly as it was (and deletes the new image's file if it was saved already). The original UV
-map, image, materials and mesh are never modified.
+it created so far (UV map, images, material copies and their node groups, face attribute) is removed again, so a
+cancelled or failed run leaves the file exactly as it was (and deletes the new images' files if they were saved
+already). The original UV map, images, materials and mesh are never modified.
+
+Every map of the material moves (DESIGN decision 6): each image the materials read through the source UV map
+(``bridge.material``) is re-baked onto the new UV map (``bridge.bake.bake_maps``) at the same relative cost as the
+base colour, each relative to its own input size, and the material copies read every new image through the new
+UV map. The loss reads the base colour (``_source_image``).
 """
 import contextlib
 import dataclasses
@@ -17,10 +22,10 @@ import numpy as np
 
 from ..core import cost as texel_cost
 from ..core.progress import RunProgress, format_seconds
-from .material import base_color_image_node
+from .material import base_color_image_node, material_maps, read_material, read_object_materials
 
 __all__ = ["Progress", "STAGE_SHARES", "triangle_results", "PipelineResult", "optimize_objects", "run_to_end",
-           "target_problem", "loss_ramp", "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE"]
+           "target_problem", "loss_ramp", "map_resolution", "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE", "COPY_PROPERTY"]
 
 _TRIANGLE_RESULTS = []
 
@@ -39,6 +44,8 @@ def triangle_results():
 
 LOSS_ATTRIBUTE = "perceptual_loss"
 LOSS_COLOR_ATTRIBUTE = "perceptual_loss_color"
+# Custom property of a material copy made by a run: the name of the material it was copied from.
+COPY_PROPERTY = "perceptual_uv_source"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +82,7 @@ class PipelineResult:
     image: "bpy.types.Image"
     materials: list
     report: dict
+    images: list = dataclasses.field(default_factory=list)  # every new image, the base colour's first
 
 
 def target_problem(obj):
@@ -169,6 +177,7 @@ class _Created:
         self.attributes = []     # (mesh, name)
         self.images = []
         self.materials = []
+        self.node_groups = []    # groups of the material copies that hold re-pointed nodes
         self.slot_links = []     # (object, slot index, previous material, previous link)
         self.files = []          # image files written to disk
 
@@ -186,6 +195,9 @@ class _Created:
                 mesh.attributes.remove(mesh.attributes[name])
         for block in self.materials:
             bpy.data.materials.remove(block)
+        for block in reversed(self.node_groups):
+            with contextlib.suppress(ReferenceError):
+                bpy.data.node_groups.remove(block)
         for block in self.images:
             bpy.data.images.remove(block)
         for path in self.files:
@@ -254,25 +266,197 @@ def _write_loss_attributes(obj, tri_polygons, losses, epsilon, created):
     colors.data.foreach_set("color", loss_ramp(polygon_loss, epsilon)[loop_polygon].ravel())
 
 
-def _material_copies(objects, image, uv_name, created):
-    """Copies of the objects' materials that sample ``image`` through ``uv_name``, linked per object."""
-    copies = {}
+def _render_uv(obj):
+    layers = obj.data.uv_layers
+    return next((layer.name for layer in layers if layer.active_render), layers[0].name if layers else None)
+
+
+def _copies_read(objects):
+    """{UV map: [(object, slot number, copy)]} for the slots holding a material copy made by an earlier run."""
+    found = {}
     for obj in objects:
         for index, slot in enumerate(obj.material_slots):
             material = slot.material
-            node = base_color_image_node(material)
-            if node is None:
+            if material is None or COPY_PROPERTY not in material:
+                continue
+            for record in material_maps(material, render_uv=_render_uv(obj)):
+                found.setdefault(record.uv_map, []).append((obj, index + 1, material))
+    return found
+
+
+def _resolve_source_uv(objects, source_uv):
+    """The UV map to read the maps through, for a first run or a run on the result of an earlier one.
+
+    After a run the slots hold object-linked copies (marked with :data:`COPY_PROPERTY`) that read the new images
+    through the new UV map, while the active UV map is still the old one. A second run optimizes what the
+    material shows: with no ``source_uv`` given, the UV map the copies read; given another one, it is refused.
+    """
+    copies = _copies_read(objects)
+    if not copies:
+        return source_uv if source_uv is not None else objects[0].data.uv_layers.active.name
+    if len(copies) > 1:
+        listing = "; ".join(f"'{material.name}' on '{obj.name}' reads UV map '{uv}'"
+                            for uv, users in sorted(copies.items(), key=lambda item: str(item[0]))
+                            for obj, _, material in users[:1])
+        raise ValueError(f"the material copies of earlier Optimize UVs runs read different UV maps ({listing}): "
+                         "optimize the objects of each run separately")
+    uv = next(iter(copies))
+    if source_uv is None or source_uv == uv:
+        return uv
+    obj, number, material = copies[uv][0]
+    original = material[COPY_PROPERTY]
+    raise ValueError(f"slot {number} of '{obj.name}' holds '{material.name}', made by an earlier Optimize UVs run "
+                     f"from '{original}': it reads its images through UV map '{uv}', not '{source_uv}'. Make "
+                     f"'{uv}' the active UV map (or pass --uv {uv}) to optimize the result again, or undo the "
+                     f"earlier run (or put '{original}' back in the slot) to start from the original")
+
+
+def _read_maps(objects, source_uv, loss_image):
+    """Every map the objects' materials read through ``source_uv``: one record per new image, the loss image's
+    first; notes on images left as they are. Refuses (ValueError) maps that cannot be re-baked."""
+    from .bake import bake_kind, transform_problem
+
+    records, notes = {}, []
+    for obj in objects:
+        for number, reading in enumerate(read_object_materials(obj, source_uv=source_uv), start=1):
+            for record in reading.maps:
+                image = record.image
+                where = f"the {record.role} map '{image.name}' of material '{reading.material.name}'"
+                if image.source in ("TILED", "MOVIE", "SEQUENCE"):
+                    kind = {"TILED": "a UDIM tiled image", "MOVIE": "a movie", "SEQUENCE": "an image sequence"}
+                    raise ValueError(f"{where} is {kind[image.source]}; only single still images can be re-baked "
+                                     "(bake it into one image first)")
+                if image.size[0] == 0 or image.size[1] == 0:
+                    path = bpy.path.abspath(image.filepath) if image.filepath else "(no file path)"
+                    raise ValueError(f"{where} has no pixels: its file {path} is missing or unreadable; fix the path "
+                                     "(Image > Replace) or pack the image")
+                if (problem := transform_problem(record)) is not None:
+                    raise ValueError(f"{where} cannot be re-baked: {problem}; move its Image Texture node and "
+                                     "coordinates out of the group, or bake the transform into the image first")
+                records.setdefault((image.as_pointer(), bake_kind(record)), record)
+            for record in reading.left_as_is:
+                name = reading.material.name if reading.material else "(none)"
+                notes.append(f"the {record.role} map '{record.image.name}' of material '{name}' (slot {number} of "
+                             f"'{obj.name}') stays as it is, not re-baked: " + "; ".join(record.notes))
+    key = (loss_image.as_pointer(), "emit")
+    if key not in records:
+        raise ValueError(f"the base colour image '{loss_image.name}' is not read through UV map '{source_uv}'; make "
+                         "the UV map its Image Texture node reads the active one")
+    ordered = [records.pop(key)] + list(records.values())
+    return ordered, list(dict.fromkeys(notes))
+
+
+def _side(image):
+    return float(np.sqrt(image.size[0] * image.size[1]))
+
+
+def map_resolution(resolution, input_side, reference_side, *, role_cost=None, reference_cost=None):
+    """Side of a map's new image: the base colour's relative cost (or ``role_cost``), relative to its own size.
+
+    Parameters
+    ----------
+    resolution : int
+        Side of the base colour's new image.
+    input_side, reference_side : float
+        The map's and the base colour's input sides (``sqrt(width * height)``).
+    role_cost, reference_cost : float, optional
+        A relative cost set for the map's role, and the base colour's measured one: the side is multiplied by
+        ``sqrt(role_cost / reference_cost)``.
+
+    Returns
+    -------
+    int
+        ``round(resolution * input_side / reference_side [* sqrt(role_cost / reference_cost)])``, in [8, 16384].
+    """
+    scale = input_side / reference_side
+    if role_cost is not None and reference_cost:
+        scale *= np.sqrt(role_cost / reference_cost)
+    return int(min(16384, max(MIN_RESOLUTION, round(resolution * scale))))
+
+
+def _stem(image):
+    stem = os.path.splitext(image.name)[0]
+    return stem[:-len("_perceptual")] if stem.endswith("_perceptual") else stem
+
+
+def _raw_bytes(width, height, alpha, is_float):
+    """Pixels x channels (3, or 4 with alpha) x bytes per channel (1, or 2 for 16-bit/float: saved as 16-bit PNG)."""
+    return int(width * height * (4 if alpha else 3) * (2 if is_float else 1))
+
+
+def _file_bytes(image):
+    if image.packed_file is not None:
+        return int(image.packed_file.size)
+    path = bpy.path.abspath(image.filepath_raw or image.filepath) if (image.filepath_raw or image.filepath) else ""
+    return int(os.path.getsize(path)) if path and os.path.isfile(path) else None
+
+
+_COORDINATE_NODES = frozenset({"UVMAP", "TEX_COORD", "MAPPING", "VECT_MATH", "VECTOR_ROTATE", "SEPXYZ", "COMBXYZ",
+                               "MATH", "MAP_RANGE", "CLAMP", "REROUTE", "VALUE"})
+
+
+def _remove_unused_coordinates(tree, node):
+    """Remove ``node`` and the coordinate nodes feeding it once nothing reads them (the new image already holds
+    a texture transform the old coordinates applied)."""
+    if node.type not in _COORDINATE_NODES or any(output.links for output in node.outputs):
+        return
+    upstream = list(dict.fromkeys(link.from_node.name for socket in node.inputs for link in socket.links))
+    tree.nodes.remove(node)
+    for name in upstream:
+        if (source := tree.nodes.get(name)) is not None:
+            _remove_unused_coordinates(tree, source)
+
+
+def _repoint(node, image, uv_name):
+    """Make an Image Texture node read ``image`` through a UV Map node on ``uv_name``, nothing else."""
+    tree = node.id_data
+    vector = node.inputs["Vector"]
+    for link in list(vector.links):
+        source = link.from_node
+        tree.links.remove(link)
+        _remove_unused_coordinates(tree, source)
+    node.image = image
+    uv_node = tree.nodes.new("ShaderNodeUVMap")
+    uv_node.uv_map = uv_name
+    uv_node.location = node.location[0] - 200, node.location[1]
+    uv_node.parent = node.parent
+    tree.links.new(uv_node.outputs["UV"], vector)
+
+
+def _material_copies(objects, baked, uv_name, source_uv, created):
+    """Copies of the objects' materials that read every re-baked image through ``uv_name``, linked per object.
+
+    ``baked`` maps (image pointer, bake kind) to the new image. In each copy every Image Texture node of a baked
+    map reads its new image through a UV Map node on ``uv_name``, and tangent-space Normal Map nodes on the
+    source UV map take their tangents from ``uv_name``: no node of the copy reads ``source_uv``. Node groups
+    holding such nodes are copied with the material. Each copy carries :data:`COPY_PROPERTY`.
+    """
+    from .bake import _all_nodes, bake_kind, localize_node_groups
+
+    copies = {}
+    for obj in objects:
+        render_uv = _render_uv(obj)
+        readings = read_object_materials(obj, source_uv=source_uv)
+        for index, (slot, reading) in enumerate(zip(obj.material_slots, readings)):
+            material = slot.material
+            if not any((record.image.as_pointer(), bake_kind(record)) in baked for record in reading.maps):
                 continue
             if material not in copies:
                 copy = material.copy()
-                copy.name = f"{material.name}_perceptual"
+                original = material.get(COPY_PROPERTY, material.name)
+                copy.name = f"{original}_perceptual"
+                copy[COPY_PROPERTY] = original
                 created.materials.append(copy)
-                copy_node = copy.node_tree.nodes[node.name]
-                copy_node.image = image
-                uv_node = copy.node_tree.nodes.new("ShaderNodeUVMap")
-                uv_node.uv_map = uv_name
-                uv_node.location = copy_node.location[0] - 200, copy_node.location[1]
-                copy.node_tree.links.new(uv_node.outputs["UV"], copy_node.inputs["Vector"])
+                localize_node_groups(copy.node_tree, created.node_groups)
+                for record in read_material(copy, source_uv=source_uv, render_uv=render_uv).maps:
+                    new = baked.get((record.image.as_pointer(), bake_kind(record)))
+                    if new is not None:
+                        for node in record.nodes:
+                            _repoint(node, new, uv_name)
+                for node in _all_nodes(copy.node_tree):
+                    if node.type == "NORMAL_MAP" and node.space == "TANGENT" and (
+                            node.uv_map == source_uv or (not node.uv_map and render_uv == source_uv)):
+                        node.uv_map = uv_name
                 copies[material] = copy
             created.slot_links.append((obj, index, slot.material, slot.link))
             slot.link = "OBJECT"  # the mesh's own material list (shared with other objects) stays as it was
@@ -315,7 +499,7 @@ def _save_or_pack(image, output_dir):
 
 
 def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
-    """Optimize the UV map of ``objects`` (sharing one base-colour image) and bake the texture onto it.
+    """Optimize the UV map of ``objects`` (sharing one base-colour image) and bake every map onto it.
 
     Parameters
     ----------
@@ -323,9 +507,11 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         Mesh objects whose base colour comes from the same image (one object, or several sharing an atlas).
     settings : perceptual_uv.core.settings.OptimizeSettings
     source_uv : str, optional
-        Name of the input UV map; default the active UV map of the first object.
+        Name of the input UV map; default the active UV map of the first object, or, when the slots hold the
+        material copies of an earlier run, the UV map those copies read (optimizing what the material shows; an
+        explicit other map is refused with the map to use).
     output_dir : str, optional
-        Folder for the new image; default next to the .blend, or packed when the file is unsaved.
+        Folder for the new images; default next to the .blend, or packed when the file is unsaved.
 
     Yields
     ------
@@ -334,7 +520,16 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     Returns
     -------
     PipelineResult
-        Through ``StopIteration.value``; :func:`run_to_end` returns it directly.
+        Through ``StopIteration.value``; :func:`run_to_end` returns it directly. ``image`` is the base colour's
+        new image, ``images`` every new image (one per map the materials read through ``source_uv``: base
+        colour, normal, packed data, emissive, ...), ``report["maps"]`` per map its role, input and new size, raw
+        and file bytes before and after, ``report["memory_ratio"]`` the maps' raw bytes after over before.
+
+    Raises
+    ------
+    ValueError
+        Before anything is changed, with the reason: among others a map that cannot be re-baked (UDIM tiles, a
+        movie or sequence, no pixels, coordinates through a texture transform).
 
     References
     ----------
@@ -346,7 +541,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     from ..core.result_cache import result_key
     from ..core.ssp import ssp_targets
     from ..core.trianglewise import iter_optimize_triangles, losses_at, losses_of
-    from .bake import bake_base_color
+    from ..core.settings import role_cost
+    from .bake import bake_maps
     from .mesh_io import write_uv_layer
 
     objects = list(objects)
@@ -357,8 +553,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         if problem:
             raise ValueError(problem)
     objects, shared_notes = _one_object_per_mesh(objects)
-    if source_uv is None:
-        source_uv = objects[0].data.uv_layers.active.name
+    source_uv = _resolve_source_uv(objects, source_uv)
     for obj in objects:
         if source_uv not in obj.data.uv_layers:
             raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}'")
@@ -378,6 +573,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     try:
         yield step("read", 0, 1, "Reading mesh and texture")
         image, validated, notes = _read_objects(objects, source_uv, settings)
+        records, map_notes = _read_maps(objects, source_uv, image)  # refused here, before the run
+        notes += map_notes
         mesh, texture, faces = validated.mesh, validated.texture, validated.faces
         V, F, uv_in = mesh.V, mesh.F, mesh.uv
         luma = texture_luma(texture)
@@ -437,7 +634,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         yield step("pack", 0, 1, "Packing islands")
         clock = time.perf_counter()
         packing = _pack(mesh.uv, uv_fit, meshwise.topology.face_chart, (width, height), settings)
-        uv_out, resolution, coverage = packing.uv, packing.resolution, packing.coverage
+        # What the UV map stores (float32), so the report's figures are those of the saved map.
+        uv_out = packing.uv.astype(np.float32).astype(np.float64)
+        resolution, coverage = packing.resolution, texel_cost.uv_area(uv_out)
         uv_name = _unique_uv_name(objects, settings.uv_map_name)
         for obj, rows in zip(objects, per_object):
             write_uv_layer(obj, uv_name, uv_out[rows], mesh.tri_loops[rows])
@@ -448,22 +647,53 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                          "is wide sets the packing scale; a seam across it lets the islands pack tighter")
         times["pack"] = time.perf_counter() - clock
 
-        yield step("bake", 0, 1, f"Baking a {resolution} x {resolution} image")
         clock = time.perf_counter()
-        image_name = settings.image_name or f"{os.path.splitext(image.name)[0]}_perceptual"
-        new_image = bake_base_color(objects, source_uv=source_uv, target_uv=uv_name, resolution=resolution,
-                                    margin=settings.margin, image_name=image_name)
-        created.images.append(new_image)
+        reference_cost = texel_cost.relative_cost(uv_out, resolution, reference_uv=uv_in,
+                                                  reference_resolution=(width, height))
+        baked, bakes = {}, []
+        for number, record in enumerate(records):
+            override = role_cost(settings.role_costs, record.role)
+            side = (resolution if number == 0 and override is None else
+                    map_resolution(resolution, _side(record.image), _side(image), role_cost=override,
+                                   reference_cost=reference_cost))
+            margin = 0 if settings.margin == 0 else max(1, round(settings.margin * side / resolution))
+            if number == 0:
+                name = settings.image_name or f"{_stem(image)}_perceptual"
+            elif settings.image_name:
+                name = f"{settings.image_name}_{record.role}"
+            else:
+                name = f"{_stem(record.image)}_perceptual"
+            yield step("bake", number, len(records), f"Baking the {record.role.replace('_', ' ')} map "
+                       f"({number + 1}/{len(records)}): {side} x {side}")
+            (result,) = bake_maps(objects, [record], source_uv=source_uv, target_uv=uv_name, resolutions=[side],
+                                  margin=margin, names=[name])
+            created.images.append(result.image)
+            baked[(record.image.as_pointer(), result.kind)] = result.image
+            bakes.append(result)
+        new_image = bakes[0].image
         times["bake"] = time.perf_counter() - clock
 
         yield step("loss", 0, 1, "Writing the loss per triangle")
         for obj, rows in zip(objects, per_object):
             _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
 
-        materials = _material_copies(objects, new_image, uv_name, created) if settings.use_material_copy else []
-        saved, save_warning = _save_or_pack(new_image, output_dir)
-        if saved:
-            created.files.append(saved)
+        materials = (_material_copies(objects, baked, uv_name, source_uv, created) if settings.use_material_copy
+                     else [])
+        warnings, maps_report = [], []
+        saved = None
+        for number, result in enumerate(bakes):
+            path, warning = _save_or_pack(result.image, output_dir)
+            if path:
+                created.files.append(path)
+            if warning:
+                warnings.append(warning)
+            if number == 0:
+                saved = path
+            maps_report.append(_map_report(result, path))
+        before = sum(entry["raw_bytes_before"] for entry in maps_report)
+        after = sum(entry["raw_bytes_after"] for entry in maps_report)
+        files_before = [entry["file_bytes_before"] for entry in maps_report]
+        files_after = [entry["file_bytes_after"] for entry in maps_report]
         times["total"] = time.perf_counter() - started
 
         report = {
@@ -474,8 +704,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "target_cost": settings.target_cost if settings.resolution is None else None,
             "resolution": int(resolution),
             "input_resolution": [int(width), int(height)],
-            "relative_cost": texel_cost.relative_cost(uv_out, resolution, reference_uv=uv_in,
-                                                      reference_resolution=(width, height)),
+            "relative_cost": reference_cost,
             "image_coverage": float(coverage),
             "times_s": {key: round(value, 3) for key, value in times.items()},
             "flipped_triangles": int(meshwise.flipped),
@@ -492,16 +721,42 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "image": new_image.name,
             "image_file": saved,
             "materials": [material.name for material in materials],
+            "maps": maps_report,
+            "memory_ratio": after / before if before else None,
+            "file_ratio": (sum(files_after) / sum(files_before) if None not in files_before + files_after
+                           and sum(files_before) else None),
             "seed": settings.seed,
             "evaluations_per_triangle": settings.iterations,
             "notes": shared_notes + notes,
-            "warnings": [save_warning] if save_warning else [],
+            "warnings": warnings,
         }
         yield step("done", 1, 1, "Done")
-        return PipelineResult(uv_map=uv_name, image=new_image, materials=materials, report=report)
+        return PipelineResult(uv_map=uv_name, image=new_image, materials=materials, report=report,
+                              images=[result.image for result in bakes])
     except BaseException:
         created.remove_all()
         raise
+
+
+def _map_report(result, path):
+    """One entry of the report's "maps": role, sizes, raw and file bytes before and after."""
+    source, image = result.record.image, result.image
+    width, height = source.size
+    return {
+        "role": result.record.role,
+        "kind": result.kind,
+        "channels": result.record.channels,
+        "colorspace": result.record.colorspace,
+        "image": source.name,
+        "new_image": image.name,
+        "new_image_file": path,
+        "input_size": [int(width), int(height)],
+        "new_size": [int(image.size[0]), int(image.size[1])],
+        "raw_bytes_before": _raw_bytes(width, height, result.alpha, source.is_float),
+        "raw_bytes_after": _raw_bytes(image.size[0], image.size[1], result.alpha, image.is_float),
+        "file_bytes_before": _file_bytes(source),
+        "file_bytes_after": _file_bytes(image),
+    }
 
 
 def _overlap_report(uv, face_chart):

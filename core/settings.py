@@ -1,7 +1,25 @@
 """The options of one optimization run, shared by the operator, the sidebar, the CLI and the pipeline."""
 import dataclasses
 
-__all__ = ["OptimizeSettings"]
+__all__ = ["OptimizeSettings", "COST_ROLES", "role_cost"]
+
+# The map roles of ``bridge.material_roles.ROLES`` (kept equal by a test; core does not import bridge), and
+# "normal" for the three normal-map roles at once.
+COST_ROLES = ("base_color", "alpha", "normal_tangent", "normal_object", "normal_world", "emissive",
+              "metallic_roughness", "occlusion", "data", "normal")
+
+
+def role_cost(role_costs, role):
+    """The relative cost ``role_costs`` sets for maps of ``role``, or None (the run's cost applies).
+
+    A role's own entry wins over "normal" for the normal-map roles.
+    """
+    costs = dict(role_costs)
+    if role in costs:
+        return costs[role]
+    if role.startswith("normal_") and "normal" in costs:
+        return costs["normal"]
+    return None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,6 +58,13 @@ class OptimizeSettings:
     reuse_triangle_results : bool
         Reuse the triangle-wise results of an earlier run on the same mesh, UV map, texture and triangle-wise
         settings (epsilon, evaluations, view sizes, seed), kept in memory and in a per-user cache folder.
+    role_costs : tuple of (str, float)
+        Per-role override of the relative cost of the material's other maps, e.g. ``(("normal", 0.2),)``. By
+        default every map gets the same relative cost as the base colour, each relative to its own input size (a
+        1k normal map beside a 2k base colour stays half the side): its side is ``resolution * input_side /
+        reference_side``, ``input_side = sqrt(width * height)``. With an override ``c`` the side is multiplied by
+        ``sqrt(c / c_ref)``, ``c_ref`` the base colour's measured relative cost, so the map's relative cost is
+        ``c``. Roles: :data:`COST_ROLES` ("normal" stands for the three normal-map roles); costs in (0, 4].
     """
 
     epsilon: float = 0.01
@@ -55,6 +80,7 @@ class OptimizeSettings:
     image_name: str = ""
     use_material_copy: bool = True
     reuse_triangle_results: bool = True
+    role_costs: tuple = ()
 
     def __post_init__(self):
         checks = [
@@ -74,6 +100,19 @@ class OptimizeSettings:
             (self.seed >= 0, f"seed {self.seed}: must be >= 0"),
             (bool(self.uv_map_name.strip()), "the new UV map needs a name"),
         ]
+        roles = [pair[0] if isinstance(pair, (tuple, list)) and len(pair) == 2 else None for pair in self.role_costs]
+        checks += [
+            (all(role is not None for role in roles),
+             f"role costs {self.role_costs!r}: must be (role, relative cost) pairs"),
+            (all(role in COST_ROLES for role in roles if role is not None),
+             f"role costs: unknown role in {', '.join(map(str, roles))}; roles are {', '.join(COST_ROLES)}"),
+            (len(set(roles)) == len(roles), f"role costs: a role is given twice in {', '.join(map(str, roles))}"),
+        ]
+        for pair, role in zip(self.role_costs, roles):
+            if role is not None:
+                cost = pair[1]
+                checks.append((isinstance(cost, (int, float)) and not isinstance(cost, bool) and 0 < cost <= 4,
+                               f"cost for {role} {cost!r}: must be in (0, 4]"))
         for ok, message in checks:
             if not ok:
                 raise ValueError(message)

@@ -48,7 +48,8 @@ def batch_settings(args):
     return {"version": _version(), "format": args.format, "object": args.object, "uv": args.uv,
             "epsilon": args.epsilon, "target_cost": None if args.resolution is not None else args.cost,
             "resolution": args.resolution, "iterations": args.iterations, "screen_pixels": args.screen_pixels,
-            "max_screen_pixels": args.max_screen_pixels, "margin": args.margin, "seed": args.seed}
+            "max_screen_pixels": args.max_screen_pixels, "margin": args.margin, "seed": args.seed,
+            "role_costs": sorted(args.cost_for)}
 
 
 def optimize_options(args):
@@ -60,6 +61,8 @@ def optimize_options(args):
                 "--workers", str(args.workers), "--seed", str(args.seed)]
     if args.fresh:
         options.append("--fresh")
+    for role, cost in args.cost_for:
+        options += ["--cost-for", f"{role}={cost!r}"]
     if args.object:
         options += ["--object", args.object]
     if args.uv:

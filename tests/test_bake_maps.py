@@ -1,0 +1,450 @@
+"""Every map of a material moves to the new UV map (issue 23, "Must show" items 3 and 4, Blender half).
+
+A synthetic material with a base colour, a tangent-space normal map (Normal Map node), a packed
+occlusion-roughness-metallic image (Separate Color, three channels) and an emissive map: after a run every map
+has a new image of its own relative size, the material copy reads every one of them through the new UV map and no
+node of it reads the old one, the packed image stays one image, and cancelling removes it all. The bakes on their
+own: a data map re-baked on the same layout is exact within one 8-bit step, a tangent-space normal map is baked
+into the new UV map's tangent frame. WaterBottle: five texture slots in the .glb, every image new and sized as
+reported.
+"""
+import json
+import pathlib
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+
+from perceptual_uv.bridge.bake import bake_maps  # noqa: E402
+from perceptual_uv.bridge.material import read_material, read_object_materials  # noqa: E402
+from perceptual_uv.bridge.material_roles import ROLES  # noqa: E402
+from perceptual_uv.bridge.pipeline import (COPY_PROPERTY, map_resolution, optimize_objects,  # noqa: E402
+                                           run_to_end)
+from perceptual_uv.core.settings import COST_ROLES, OptimizeSettings, role_cost  # noqa: E402
+
+from conftest import reset_blender_scene  # noqa: E402  (tests/ is on sys.path under pytest)
+from test_optimize_end_to_end import FAST  # noqa: E402
+from test_robustness import textured_grid  # noqa: E402
+
+pytestmark = pytest.mark.bpy
+ONE_STEP = 1 / 255 + 1e-6
+SQUARE = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+
+
+# --- building materials ------------------------------------------------------------------------------------
+
+def new_image(name, size, rgb, *, data=True, alpha=None, float_buffer=False):
+    image = bpy.data.images.new(name, size, size, alpha=alpha is not None, float_buffer=float_buffer)
+    if data:
+        image.colorspace_settings.name = "Non-Color"
+    rgba = np.ones((size, size, 4), dtype=np.float32)
+    rgba[..., :3] = rgb
+    if alpha is not None:
+        rgba[..., 3] = alpha
+    image.pixels.foreach_set(rgba.ravel())
+    return image
+
+
+def add_normal_map(material, image):
+    tree = material.node_tree
+    texture = tree.nodes.new("ShaderNodeTexImage")
+    texture.image = image
+    normal = tree.nodes.new("ShaderNodeNormalMap")
+    tree.links.new(texture.outputs["Color"], normal.inputs["Color"])
+    tree.links.new(normal.outputs["Normal"], tree.nodes["Principled BSDF"].inputs["Normal"])
+    return texture
+
+
+def add_orm(material, image):
+    tree = material.node_tree
+    texture = tree.nodes.new("ShaderNodeTexImage")
+    texture.image = image
+    separate = tree.nodes.new("ShaderNodeSeparateColor")
+    tree.links.new(texture.outputs["Color"], separate.inputs["Color"])
+    principled = tree.nodes["Principled BSDF"]
+    tree.links.new(separate.outputs["Green"], principled.inputs["Roughness"])
+    tree.links.new(separate.outputs["Blue"], principled.inputs["Metallic"])
+    # occlusion in the red channel, through the glTF importer's output group: three channels of one image
+    group = bpy.data.node_groups.get("glTF Material Output")
+    if group is None:
+        group = bpy.data.node_groups.new("glTF Material Output", "ShaderNodeTree")
+        group.interface.new_socket("Occlusion", in_out="INPUT", socket_type="NodeSocketFloat")
+    output = tree.nodes.new("ShaderNodeGroup")
+    output.node_tree = group
+    tree.links.new(separate.outputs["Red"], output.inputs["Occlusion"])
+    return texture
+
+
+def add_emissive(material, image):
+    tree = material.node_tree
+    texture = tree.nodes.new("ShaderNodeTexImage")
+    texture.image = image
+    principled = tree.nodes["Principled BSDF"]
+    tree.links.new(texture.outputs["Color"], principled.inputs["Emission Color"])
+    principled.inputs["Emission Strength"].default_value = 1.0
+    return texture
+
+
+def pbr_grid():
+    """A 4 x 4 grid: 64 px base colour, 32 px normal map, 64 px packed ORM, 16 px emissive."""
+    reset_blender_scene()
+    obj = textured_grid("pbr", k=4, image_size=(64, 64))
+    material = obj.material_slots[0].material
+    rng = np.random.default_rng(5)
+    tilt = np.stack([0.5 + 0.2 * rng.random((32, 32)), 0.5 + 0.2 * rng.random((32, 32)), np.ones((32, 32))], -1)
+    add_normal_map(material, new_image("pbr_normal", 32, tilt))
+    add_orm(material, new_image("pbr_orm", 64, rng.random((64, 64, 3))))
+    add_emissive(material, new_image("pbr_emissive", 16, rng.random((16, 16, 3)), data=False))
+    return obj
+
+
+def quad(name="quad"):
+    """One unit quad on the xy plane with UV maps "UVMap" (the unit square) and "Same" (a copy)."""
+    reset_blender_scene()
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [], [(0, 1, 2, 3)])
+    mesh.uv_layers.new(name="UVMap").uv.foreach_set("vector", SQUARE.ravel())
+    mesh.uv_layers.new(name="Same").uv.foreach_set("vector", SQUARE.ravel())
+    mesh.uv_layers.active = mesh.uv_layers["UVMap"]
+    material = bpy.data.materials.new(f"{name}_material")
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj, material
+
+
+def pixels_of(image):
+    pixels = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    return pixels.reshape(image.size[1], image.size[0], -1)
+
+
+def image_nodes(tree):
+    for node in tree.nodes:
+        if node.type == "GROUP" and node.node_tree is not None:
+            yield from image_nodes(node.node_tree)
+        elif node.type in ("TEX_IMAGE", "UVMAP", "NORMAL_MAP"):
+            yield node
+
+
+# --- the bakes on their own ------------------------------------------------------------------------------------
+
+def test_a_packed_data_map_rebaked_on_the_same_layout_is_exact_and_stays_one_image():
+    obj, material = quad()
+    rng = np.random.default_rng(2)
+    orm = rng.integers(0, 256, (8, 8, 3)) / 255.0
+    add_orm(material, new_image("orm", 8, orm))
+    (record,) = read_object_materials(obj, source_uv="UVMap")[0].maps
+    assert record.role == "metallic_roughness" and record.channels == "RGB"
+    (result,) = bake_maps([obj], [record], source_uv="UVMap", target_uv="Same", resolutions=[8], margin=2,
+                          names=["orm_new"])
+    assert result.kind == "emit" and not result.alpha and not result.image.is_float
+    assert result.image.colorspace_settings.name == "Non-Color" and tuple(result.image.size) == (8, 8)
+    np.testing.assert_allclose(pixels_of(result.image)[..., :3], orm, atol=ONE_STEP)
+
+
+def test_a_float_data_map_stays_float_and_a_base_colour_keeps_its_alpha():
+    obj, material = quad()
+    rng = np.random.default_rng(4)
+    height = rng.random((8, 8, 3))
+    tree = material.node_tree
+    texture = tree.nodes.new("ShaderNodeTexImage")
+    texture.image = new_image("height", 8, height, float_buffer=True)
+    bump = tree.nodes.new("ShaderNodeBump")
+    tree.links.new(texture.outputs["Color"], bump.inputs["Height"])
+    tree.links.new(bump.outputs["Normal"], tree.nodes["Principled BSDF"].inputs["Normal"])
+    colour = tree.nodes.new("ShaderNodeTexImage")
+    alpha = rng.integers(64, 256, (8, 8)) / 255.0
+    colour.image = new_image("colour", 8, rng.integers(0, 256, (8, 8, 3)) / 255.0, data=False, alpha=alpha)
+    tree.links.new(colour.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Base Color"])
+    tree.links.new(colour.outputs["Alpha"], tree.nodes["Principled BSDF"].inputs["Alpha"])
+    records = {record.role: record for record in read_object_materials(obj, source_uv="UVMap")[0].maps}
+    assert set(records) == {"base_color", "data"}
+    results = bake_maps([obj], [records["data"], records["base_color"]], source_uv="UVMap", target_uv="Same",
+                        resolutions=[8, 8], margin=1, names=["h", "c"])
+    data, base = results
+    assert data.image.is_float and data.image.colorspace_settings.name == "Non-Color"
+    # Cycles' lookup sits ~1e-3 texel off the texel centre: a float map shows that bilinear mix, < one 8-bit step
+    np.testing.assert_allclose(pixels_of(data.image)[..., :3], height, atol=ONE_STEP)
+    assert base.alpha and base.image.colorspace_settings.name == "sRGB"
+    np.testing.assert_allclose(pixels_of(base.image)[..., 3], alpha, atol=ONE_STEP)
+
+
+def normal_quad(value, target_corners):
+    obj, material = quad("normal")
+    obj.data.uv_layers["Same"].uv.foreach_set("vector", np.asarray(target_corners, dtype=float).ravel())
+    add_normal_map(material, new_image("normal", 8, value))
+    (record,) = read_object_materials(obj, source_uv="UVMap")[0].maps
+    assert record.role == "normal_tangent"
+    (result,) = bake_maps([obj], [record], source_uv="UVMap", target_uv="Same", resolutions=[8], margin=1,
+                          names=["normal_new"])
+    assert result.kind == "normal" and result.image.colorspace_settings.name == "Non-Color"
+    return pixels_of(result.image)[..., :3]
+
+
+def test_a_flat_normal_map_bakes_flat_on_the_same_layout():
+    baked = normal_quad((0.5, 0.5, 1.0), SQUARE)
+    np.testing.assert_allclose(baked, np.broadcast_to((0.5, 0.5, 1.0), baked.shape), atol=2 / 255)
+
+
+def test_a_normal_map_is_baked_into_the_tangent_frame_of_the_new_uv_map():
+    # (0.8, 0.5, 0.9) is the unit normal (0.6, 0, 0.8): tilted along the source tangent, +x on this quad.
+    np.testing.assert_allclose(normal_quad((0.8, 0.5, 0.9), SQUARE), np.broadcast_to((0.8, 0.5, 0.9), (8, 8, 3)),
+                               atol=2 / 255)
+    # Target (u, v) = (1 - y, x): its tangent is -y and its bitangent +x, so the tilt moves to the green channel.
+    turned = np.stack([1 - SQUARE[:, 1], SQUARE[:, 0]], axis=1)
+    np.testing.assert_allclose(normal_quad((0.8, 0.5, 0.9), turned), np.broadcast_to((0.5, 0.8, 0.9), (8, 8, 3)),
+                               atol=2 / 255)
+
+
+# --- sizes ---------------------------------------------------------------------------------------------------
+
+def test_each_map_keeps_its_size_relative_to_its_input():
+    assert map_resolution(300, 1024, 2048) == 150
+    assert map_resolution(300, 2048, 2048) == 300
+    assert map_resolution(20, 64, 2048) == 8  # at least 8 px
+    # an override of 0.075 against a measured 0.3: half the side
+    assert map_resolution(300, 1024, 2048, role_cost=0.075, reference_cost=0.3) == 75
+    assert role_cost((("normal", 0.2),), "normal_tangent") == 0.2
+    assert role_cost((("normal", 0.2), ("normal_tangent", 0.1)), "normal_tangent") == 0.1
+    assert role_cost((("normal", 0.2),), "base_color") is None
+    assert set(COST_ROLES) == set(ROLES) | {"normal"}
+    with pytest.raises(ValueError, match="unknown role"):
+        OptimizeSettings(role_costs=(("normals", 0.2),))
+    with pytest.raises(ValueError, match=r"must be in \(0, 4\]"):
+        OptimizeSettings(role_costs=(("normal", 0.0),))
+
+
+# --- the whole run -------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def pbr_run():
+    obj = pbr_grid()
+    images_before = {image.name for image in bpy.data.images}
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    return obj, result, images_before
+
+
+def test_every_map_gets_a_new_image_of_its_relative_size(pbr_run):
+    obj, result, images_before = pbr_run
+    report = result.report
+    resolution = report["resolution"]
+    maps = {entry["role"]: entry for entry in report["maps"]}
+    assert set(maps) == {"base_color", "normal_tangent", "metallic_roughness", "emissive"}
+    expected = {"base_color": resolution, "metallic_roughness": resolution,
+                "normal_tangent": max(8, round(resolution / 2)), "emissive": max(8, round(resolution / 4))}
+    for role, side in expected.items():
+        assert maps[role]["new_size"] == [side, side], role
+        assert maps[role]["new_image"] not in images_before
+    assert len(result.images) == 4 and result.images[0] == result.image
+    assert [image.name for image in result.images] == [entry["new_image"] for entry in report["maps"]]
+    assert maps["normal_tangent"]["input_size"] == [32, 32] and maps["emissive"]["input_size"] == [16, 16]
+    before = sum(entry["raw_bytes_before"] for entry in report["maps"])
+    after = sum(entry["raw_bytes_after"] for entry in report["maps"])
+    assert report["memory_ratio"] == pytest.approx(after / before)
+    assert maps["metallic_roughness"]["raw_bytes_before"] == 64 * 64 * 3
+
+
+def test_the_copy_reads_every_new_image_through_the_new_uv_map(pbr_run):
+    obj, result, _ = pbr_run
+    uv_name = result.uv_map
+    (copy,) = result.materials
+    assert obj.material_slots[0].material == copy and copy[COPY_PROPERTY] == "pbr_material"
+    nodes = list(image_nodes(copy.node_tree))
+    textures = [node for node in nodes if node.type == "TEX_IMAGE"]
+    assert {node.image for node in textures} == set(result.images)  # the ORM is one image, one node
+    for node in textures:
+        (link,) = node.inputs["Vector"].links
+        assert link.from_node.type == "UVMAP" and link.from_node.uv_map == uv_name
+    assert all(node.uv_map == uv_name for node in nodes if node.type in ("UVMAP", "NORMAL_MAP"))
+    # read through the old UV map, the copy has nothing left to move; through the new one, every map
+    assert not read_material(copy, source_uv="UVMap", render_uv="UVMap").maps
+    roles = {record.role for record in read_material(copy, source_uv=uv_name, render_uv="UVMap").maps}
+    assert roles == {"base_color", "normal_tangent", "metallic_roughness", "emissive"}
+    # the original material and its images are untouched
+    original = bpy.data.materials["pbr_material"]
+    assert {node.image.name for node in original.node_tree.nodes if node.type == "TEX_IMAGE"} == {
+        "pbr_texture", "pbr_normal", "pbr_orm", "pbr_emissive"}
+
+
+def test_a_second_run_optimizes_what_the_copy_shows(pbr_run):
+    obj, first, _ = pbr_run
+    with pytest.raises(ValueError, match=f"Make '{first.uv_map}' the active UV map"):
+        run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), source_uv="UVMap"))
+    second = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    assert second.report["source_uv_map"] == first.uv_map and second.uv_map != first.uv_map
+    assert {entry["image"] for entry in second.report["maps"]} == {image.name for image in first.images}
+    (copy,) = second.materials
+    assert copy[COPY_PROPERTY] == "pbr_material" and copy.name.startswith("pbr_material_perceptual")
+    assert {node.image for node in image_nodes(copy.node_tree) if node.type == "TEX_IMAGE"} == set(second.images)
+    assert not read_material(copy, source_uv=first.uv_map, render_uv="UVMap").maps
+
+
+def test_a_cancelled_run_removes_every_image_material_and_group():
+    obj = pbr_grid()
+    counts = {kind: len(getattr(bpy.data, kind)) for kind in ("images", "materials", "node_groups")}
+    run = optimize_objects([obj], OptimizeSettings(**FAST))
+    for progress in run:
+        if progress.stage == "loss":
+            break
+    assert len(bpy.data.images) == counts["images"] + 4
+    run.close()
+    assert {kind: len(getattr(bpy.data, kind)) for kind in counts} == counts
+    assert obj.material_slots[0].material.name == "pbr_material"
+
+
+def test_a_map_without_pixels_is_refused_before_the_run(tmp_path):
+    obj = pbr_grid()
+    broken = bpy.data.images.new("normal.png", 4, 4)
+    broken.source = "FILE"
+    broken.filepath = str(tmp_path / "normal.png")
+    broken.reload()
+    node = next(node for node in obj.material_slots[0].material.node_tree.nodes
+                if node.type == "TEX_IMAGE" and node.image.name == "pbr_normal")
+    node.image = broken
+    layers = obj.data.uv_layers.keys()
+    with pytest.raises(ValueError, match="normal_tangent map 'normal.png'.*has no pixels") as refused:
+        run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    assert str(tmp_path / "normal.png") in str(refused.value)
+    assert obj.data.uv_layers.keys() == layers
+
+
+def test_a_tiled_map_is_refused_before_the_run():
+    obj = pbr_grid()
+    node = next(node for node in obj.material_slots[0].material.node_tree.nodes
+                if node.type == "TEX_IMAGE" and node.image.name == "pbr_orm")
+    node.image = bpy.data.images.new("udim", 16, 16, tiled=True)
+    images, layers = len(bpy.data.images), obj.data.uv_layers.keys()
+    with pytest.raises(ValueError, match="map 'udim' of material 'pbr_material' is a UDIM tiled image"):
+        run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    assert obj.data.uv_layers.keys() == layers and len(bpy.data.images) == images
+
+
+# --- WaterBottle ---------------------------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_waterbottle_glb_has_five_texture_slots_with_new_images(shared_models_dir, tmp_path):
+    import gltf_validate
+    from test_gltf_export import FAST_ARGS, buffer_view_bytes, image_size, read_glb, run_cli
+
+    model = shared_models_dir / "WaterBottle" / "WaterBottle.gltf"
+    if not model.is_file():
+        pytest.skip(f"{model} is absent")
+    out, report_path = tmp_path / "wb.glb", tmp_path / "report.json"
+    result = run_cli("optimize", str(model), "--out", str(out), "--report", str(report_path), *FAST_ARGS)
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(report_path.read_text())
+    gltf, binary = read_glb(out)
+    (material,) = gltf["materials"]
+    pbr = material["pbrMetallicRoughness"]
+    slots = {"baseColorTexture": pbr.get("baseColorTexture"), "metallicRoughnessTexture":
+             pbr.get("metallicRoughnessTexture"), "normalTexture": material.get("normalTexture"),
+             "occlusionTexture": material.get("occlusionTexture"), "emissiveTexture": material.get("emissiveTexture")}
+    assert all(slots.values()), slots
+    sizes = {entry["new_image"]: tuple(entry["new_size"]) for entry in report["maps"]}
+    assert len(sizes) == 4  # base colour, normal, emissive, and one occlusion-roughness-metallic image
+    for slot in slots.values():
+        assert slot.get("texCoord", 0) == 0
+        image = gltf["images"][gltf["textures"][slot["index"]]["source"]]
+        data, _ = buffer_view_bytes(gltf, binary, image["bufferView"])
+        assert image["name"] in sizes and image_size(data) == sizes[image["name"]]
+    orm = {slots[name]["index"] for name in ("metallicRoughnessTexture", "occlusionTexture")}
+    assert len({gltf["textures"][index]["source"] for index in orm}) == 1
+    inputs = {entry["image"] for entry in report["maps"]}
+    assert not inputs & set(sizes)
+    assert 0 < report["memory_ratio"] < 1
+    reason = gltf_validate.unavailable()
+    if not reason:
+        assert gltf_validate.validate(out)["errors"] == 0
+    print("WaterBottle", json.dumps({"memory_ratio": report["memory_ratio"], "file_ratio": report["file_ratio"],
+                                     "maps": [(e["role"], e["input_size"], e["new_size"], e["raw_bytes_before"],
+                                               e["raw_bytes_after"], e["file_bytes_before"], e["file_bytes_after"])
+                                              for e in report["maps"]], "times": report["times_s"]}))
+
+
+def test_one_undo_removes_every_new_image_and_the_copy():
+    import perceptual_uv
+
+    perceptual_uv.register()
+    try:
+        obj = pbr_grid()
+        bpy.context.view_layer.objects.active = obj
+        names = {kind: sorted(block.name for block in getattr(bpy.data, kind))
+                 for kind in ("images", "materials", "node_groups")}
+        bpy.ops.ed.undo_push(message="before Optimize UVs")
+        # The second argument asks for the undo push that a click in the UI makes.
+        assert bpy.ops.uv.perceptual_optimize("EXEC_DEFAULT", True, **FAST) == {"FINISHED"}
+        assert len(bpy.data.images) == len(names["images"]) + 4
+        assert bpy.data.objects["pbr"].material_slots[0].material.name == "pbr_material_perceptual"
+        bpy.ops.ed.undo()
+        assert {kind: sorted(block.name for block in getattr(bpy.data, kind)) for kind in names} == names
+        obj = bpy.data.objects["pbr"]
+        assert obj.material_slots[0].material.name == "pbr_material"
+        assert obj.data.uv_layers.keys() == ["UVMap"]
+    finally:
+        perceptual_uv.unregister()
+
+
+def test_a_detail_normal_blended_after_the_normal_map_is_not_baked_into_it():
+    obj, material = quad("detailed")
+    add_normal_map(material, new_image("normal", 8, (0.5, 0.5, 1.0)))
+    tree = material.node_tree
+    normal_map = next(node for node in tree.nodes if node.type == "NORMAL_MAP")
+    # normalize(n_map + n_detail): the copy keeps the blend, so baked in too the detail would apply twice
+    detail = tree.nodes.new("ShaderNodeNormalMap")
+    constant = tree.nodes.new("ShaderNodeRGB")
+    constant.outputs[0].default_value = (0.8, 0.5, 0.9, 1.0)
+    tree.links.new(constant.outputs[0], detail.inputs["Color"])
+    add = tree.nodes.new("ShaderNodeVectorMath")
+    add.operation = "ADD"
+    normalize = tree.nodes.new("ShaderNodeVectorMath")
+    normalize.operation = "NORMALIZE"
+    tree.links.new(normal_map.outputs["Normal"], add.inputs[0])
+    tree.links.new(detail.outputs["Normal"], add.inputs[1])
+    tree.links.new(add.outputs["Vector"], normalize.inputs[0])
+    tree.links.new(normalize.outputs["Vector"], tree.nodes["Principled BSDF"].inputs["Normal"])
+    (record,) = [record for record in read_object_materials(obj, source_uv="UVMap")[0].maps
+                 if record.role == "normal_tangent"]
+    (result,) = bake_maps([obj], [record], source_uv="UVMap", target_uv="Same", resolutions=[8], margin=1,
+                          names=["normal_new"])
+    np.testing.assert_allclose(pixels_of(result.image)[..., :3], np.broadcast_to((0.5, 0.5, 1.0), (8, 8, 3)),
+                               atol=2 / 255)
+
+
+def add_mapping(material, texture, *, location=(0.5, 0.0, 0.0)):
+    tree = material.node_tree
+    coordinates = tree.nodes.new("ShaderNodeTexCoord")
+    mapping = tree.nodes.new("ShaderNodeMapping")
+    mapping.inputs["Location"].default_value = location
+    tree.links.new(coordinates.outputs["UV"], mapping.inputs["Vector"])
+    tree.links.new(mapping.outputs["Vector"], texture.inputs["Vector"])
+
+
+def test_a_texture_transform_is_baked_into_the_new_image():
+    obj, material = quad()
+    rng = np.random.default_rng(6)
+    orm = rng.integers(0, 256, (8, 8, 3)) / 255.0
+    texture = add_orm(material, new_image("orm", 8, orm))
+    add_mapping(material, texture)  # u + 0.5: half the image over, REPEAT
+    (record,) = read_object_materials(obj, source_uv="UVMap")[0].maps
+    assert any("texture transform" in note for note in record.notes)
+    (result,) = bake_maps([obj], [record], source_uv="UVMap", target_uv="Same", resolutions=[8], margin=1,
+                          names=["orm_new"])
+    np.testing.assert_allclose(pixels_of(result.image)[..., :3], np.roll(orm, -4, axis=1), atol=ONE_STEP)
+
+
+def test_the_copy_of_a_transformed_map_reads_the_new_image_without_the_transform():
+    obj = pbr_grid()
+    material = obj.material_slots[0].material
+    emissive = next(node for node in material.node_tree.nodes
+                    if node.type == "TEX_IMAGE" and node.image.name == "pbr_emissive")
+    add_mapping(material, emissive, location=(0.25, 0.1, 0.0))
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    (copy,) = result.materials
+    assert not [node for node in copy.node_tree.nodes if node.type in ("MAPPING", "TEX_COORD")]
+    node = next(node for node in copy.node_tree.nodes if node.type == "TEX_IMAGE" and node.image in result.images
+                and node.image.name.startswith("pbr_emissive"))
+    (link,) = node.inputs["Vector"].links
+    assert link.from_node.type == "UVMAP" and link.from_node.uv_map == result.uv_map
+    assert [node.type for node in material.node_tree.nodes].count("MAPPING") == 1  # the original keeps its own
