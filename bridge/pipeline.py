@@ -346,6 +346,28 @@ def _read_maps(objects, source_uv, loss_image):
     return ordered, list(dict.fromkeys(notes))
 
 
+def _loss_planes(records, texture):
+    """The planes the triangle-wise loss sees (``core.loss_planes``), one map after the other: the loss image
+    (``texture``, already read) first, so its texel grid is the parameters' frame; colour maps as luma (and
+    alpha), tangent-space normals as their shading, data maps per channel their material reads."""
+    from ..core.loss_planes import loss_planes
+    from .mesh_io import read_image
+
+    maps = []
+    for index, record in enumerate(records):
+        pixels = np.clip(texture if index == 0 else read_image(record.image), 0.0, 1.0)  # float maps may exceed 1
+        if record.kind == "color":
+            maps.append({"role": "color", "pixels": pixels, "name": record.role})
+        elif record.kind == "tangent_normal":
+            maps.append({"role": "normal", "pixels": pixels[..., :3], "name": record.role})
+        else:
+            channels = tuple("RGBA".index(c) for c in record.channels if "RGBA".index(c) < pixels.shape[-1])
+            maps.append({"role": "data", "pixels": pixels, "channels": channels or None, "name": record.role})
+    # Constant maps stay: the first plane's grid is the parameters' frame, and a plane constant under a view
+    # costs nothing.
+    return loss_planes(maps, drop_constant=False)
+
+
 def _side(image):
     return float(np.sqrt(image.size[0] * image.size[1]))
 
@@ -537,10 +559,10 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     translations and 90-degree rotations, resolution from the target cost, Eq. 20-21).
     """
     from ..core.chartfit import iter_fit_charts
-    from ..core.loss import above_bound, texture_luma
+    from ..core.loss import above_bound
     from ..core.result_cache import result_key
     from ..core.ssp import ssp_targets
-    from ..core.trianglewise import iter_optimize_triangles, losses_at, losses_of
+    from ..core.trianglewise import iter_losses_at, iter_losses_of, iter_optimize_triangles
     from ..core.settings import role_cost
     from .bake import bake_maps
     from .mesh_io import write_uv_layer
@@ -577,18 +599,18 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         notes += map_notes
         mesh, texture, faces = validated.mesh, validated.texture, validated.faces
         V, F, uv_in = mesh.V, mesh.F, mesh.uv
-        luma = texture_luma(texture)
+        planes = _loss_planes(records, texture)  # every map the loss sees, the loss image's first
         height, width = texture.shape[:2]
         m = len(F)
         per_object = [mesh.object_index == index for index in range(len(objects))]
 
         clock = time.perf_counter()
-        key = result_key(V, F, uv_in, luma, faces, epsilon=settings.epsilon, evaluations=settings.iterations,
+        key = result_key(V, F, uv_in, *planes, faces, epsilon=settings.epsilon, evaluations=settings.iterations,
                          screen_pixels=settings.screen_pixels, max_screen_pixels=settings.max_screen_pixels,
                          seed=settings.seed)
         triangles = triangle_results().get(key) if settings.reuse_triangle_results else None
         if triangles is None:
-            stage = iter_optimize_triangles(V, F, uv_in, luma, epsilon=settings.epsilon,
+            stage = iter_optimize_triangles(V, F, uv_in, planes, epsilon=settings.epsilon,
                                             evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
                                             max_screen_pixels=settings.max_screen_pixels,
                                             workers=settings.workers, seed=settings.seed, faces=faces)
@@ -609,18 +631,18 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         yield step("mesh", 0, 1, "Measuring the texture's signal stretch")
         signal, _, _ = ssp_targets(V, F, uv_in, texture)
         # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
-        targets = triangles.fit_targets(uv_in, luma, signal_targets=signal)
+        targets = triangles.fit_targets(uv_in, planes, signal_targets=signal)
         params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
-        yield step("mesh", 0, 1, "Measuring the loss of the fit's targets")
-        target_losses = losses_of(V, F, uv_in, luma, targets, screen_pixels=settings.screen_pixels,
-                                  max_screen_pixels=settings.max_screen_pixels, faces=faces,
-                                  workers=settings.workers)
+        stage = iter_losses_of(V, F, uv_in, planes, targets, screen_pixels=settings.screen_pixels,
+                               max_screen_pixels=settings.max_screen_pixels, faces=faces, workers=settings.workers)
+        target_losses = yield from _relay(stage, "mesh", "Measuring the loss of the fit's targets", clock, step)
 
-        def measure(uv_new):
+        def measure(uv_new):  # a generator: the fit hands control back while the workers measure
             losses = np.zeros(m)  # skipped triangles show 0 in the overlay; the report counts optimized ones only
-            losses[faces] = losses_at(V, F, uv_in, luma, uv_new, screen_pixels=settings.screen_pixels,
-                                      max_screen_pixels=settings.max_screen_pixels, faces=faces,
-                                      workers=settings.workers)
+            losses[faces] = yield from iter_losses_at(V, F, uv_in, planes, uv_new,
+                                                      screen_pixels=settings.screen_pixels,
+                                                      max_screen_pixels=settings.max_screen_pixels, faces=faces,
+                                                      workers=settings.workers)
             return losses
 
         stage = iter_fit_charts(F, uv_in, params, w_R, w_S, measure=measure, texel_scale=(width, height))
@@ -711,7 +733,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),
             "restored_charts": int(restored.size),
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
-            "textured_above_bound": above_bound(uv_in[faces], luma, settings.epsilon, targets=target_losses,
+            "textured_above_bound": above_bound(uv_in[faces], planes, settings.epsilon, targets=target_losses,
                                                 fit=losses[faces]),
             "unevaluated_triangles": unevaluated,
             "optimized_triangles": int(len(faces)),

@@ -448,3 +448,50 @@ def test_the_copy_of_a_transformed_map_reads_the_new_image_without_the_transform
     (link,) = node.inputs["Vector"].links
     assert link.from_node.type == "UVMAP" and link.from_node.uv_map == result.uv_map
     assert [node.type for node in material.node_tree.nodes].count("MAPPING") == 1  # the original keeps its own
+
+
+# --- the loss sees every map ---------------------------------------------------------------------------------
+
+def detail_on_the_left(size, rng):
+    """A (size, size) mask that is 1 where u < 0.5 (the grid's left half under textured_grid's UVs)."""
+    return (np.arange(size)[None, :] < size // 2).astype(float) * np.ones((size, 1))
+
+
+def area_ratio_left_to_right(obj, result):
+    """Median of new / input UV area on the grid's left third over that on its right third."""
+    from perceptual_uv.bridge.mesh_io import read_mesh
+
+    before, after = read_mesh(obj, uv_name="UVMap"), read_mesh(obj, uv_name=result.uv_map)
+
+    def areas(uv):
+        e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+        return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+    scale = areas(after.uv) / areas(before.uv)
+    x = before.V[before.F].mean(axis=1)[:, 0]
+    return np.median(scale[x < 1 / 3]) / np.median(scale[x > 2 / 3])
+
+
+def flat_grid(name):
+    reset_blender_scene()
+    flat = new_image(f"{name}_flat", 64, np.full((64, 64, 3), 0.5), data=False)
+    obj = textured_grid(name, k=8, image=flat)
+    return obj, obj.material_slots[0].material
+
+
+@pytest.mark.parametrize("where", ["normal", "roughness"])
+def test_detail_only_in_another_map_keeps_its_triangles_large(where):
+    # The base colour is flat everywhere: luma alone would shrink every triangle alike. The detail is on the
+    # left half of the normal map (random tilts) or of the roughness channel; the right half is flat.
+    obj, material = flat_grid(f"detail_{where}")
+    rng = np.random.default_rng(3)
+    left = detail_on_the_left(64, rng)[..., None]
+    if where == "normal":
+        tilt = np.stack([0.5 + 0.3 * rng.random((64, 64)), 0.5 + 0.3 * rng.random((64, 64)), np.ones((64, 64))], -1)
+        add_normal_map(material, new_image("bumps", 64, left * tilt + (1 - left) * np.array([0.5, 0.5, 1.0])))
+    else:
+        orm = np.full((64, 64, 3), 0.5)
+        orm[..., 1] = left[..., 0] * rng.random((64, 64)) + (1 - left[..., 0]) * 0.5
+        add_orm(material, new_image("roughness", 64, orm))
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    assert area_ratio_left_to_right(obj, result) > 3
