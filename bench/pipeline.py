@@ -63,7 +63,9 @@ def run_pipeline(path, settings_options):
     objects = textured_objects()
     imported = time.perf_counter() - started
     output_dir = tempfile.TemporaryDirectory(prefix="perceptual_uv-bench-")
-    pipeline = optimize_objects(objects, OptimizeSettings(**settings_options), output_dir=output_dir.name)
+    known = {name: value for name, value in settings_options.items()  # an older revision may lack a setting
+             if name in OptimizeSettings.__dataclass_fields__}
+    pipeline = optimize_objects(objects, OptimizeSettings(**known), output_dir=output_dir.name)
     longest, longest_stage, steps = 0.0, None, 0
     step_started, stage = time.perf_counter(), "start"
     while True:
