@@ -157,6 +157,9 @@ def build_parser():
     optimize = commands.add_parser("optimize", help="optimize the UV map of a model and bake its texture")
     optimize.add_argument("input", metavar="IN", type=_existing_model, help=".blend, .glb/.gltf or .obj")
     _add_optimize_options(optimize)
+    optimize.add_argument("--scheduler", metavar="ADDRESS",
+                          help="Dask scheduler (e.g. tcp://host:8786): the triangle-wise stage runs on every worker "
+                               "of that cluster, with the same results as here (needs dask and distributed)")
     optimize.add_argument("--out", required=True, type=_output_model, help="OUT.blend or OUT.glb")
     optimize.add_argument("--report", type=pathlib.Path, help="write the JSON report here")
 
@@ -191,7 +194,8 @@ def _validate(args):
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
                 screen_pixels=args.screen_pixels, max_screen_pixels=args.max_screen_pixels, margin=args.margin,
                 workers=args.workers, seed=args.seed, reuse_triangle_results=not args.fresh,
-                role_costs=tuple(args.cost_for))
+                role_costs=tuple(args.cost_for),
+                scheduler=args.scheduler if args.command == "optimize" else None)
         except ValueError as error:
             raise UsageError(str(error)) from None
     return args

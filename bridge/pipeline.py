@@ -613,7 +613,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             stage = iter_optimize_triangles(V, F, uv_in, planes, epsilon=settings.epsilon,
                                             evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
                                             max_screen_pixels=settings.max_screen_pixels,
-                                            workers=settings.workers, seed=settings.seed, faces=faces)
+                                            workers=settings.workers, seed=settings.seed, faces=faces,
+                                            scheduler=settings.scheduler)
             triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock, step)
             triangle_results().put(key, triangles)
         else:
@@ -634,7 +635,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         targets = triangles.fit_targets(uv_in, planes, signal_targets=signal)
         params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
         stage = iter_losses_of(V, F, uv_in, planes, targets, screen_pixels=settings.screen_pixels,
-                               max_screen_pixels=settings.max_screen_pixels, faces=faces, workers=settings.workers)
+                               max_screen_pixels=settings.max_screen_pixels, faces=faces, workers=settings.workers,
+                               scheduler=settings.scheduler)
         target_losses = yield from _relay(stage, "mesh", "Measuring the loss of the fit's targets", clock, step)
 
         def measure(uv_new):  # a generator: the fit hands control back while the workers measure
@@ -642,7 +644,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             losses[faces] = yield from iter_losses_at(V, F, uv_in, planes, uv_new,
                                                       screen_pixels=settings.screen_pixels,
                                                       max_screen_pixels=settings.max_screen_pixels, faces=faces,
-                                                      workers=settings.workers)
+                                                      workers=settings.workers, scheduler=settings.scheduler)
             return losses
 
         stage = iter_fit_charts(F, uv_in, params, w_R, w_S, measure=measure, texel_scale=(width, height))

@@ -55,6 +55,9 @@ class OptimizeSettings:
         Name of the new image; empty means "<original image>_perceptual".
     use_material_copy : bool
         Assign copies of the materials that sample the new image through the new UV map.
+    scheduler : str or None
+        Address of a Dask scheduler: the triangle-wise stage and the loss passes run as tasks of that cluster
+        (command line only; the results are those of a local run).
     reuse_triangle_results : bool
         Reuse the triangle-wise results of an earlier run on the same mesh, UV map, texture and triangle-wise
         settings (epsilon, evaluations, view sizes, seed), kept in memory and in a per-user cache folder.
@@ -80,6 +83,7 @@ class OptimizeSettings:
     image_name: str = ""
     use_material_copy: bool = True
     reuse_triangle_results: bool = True
+    scheduler: str | None = None
     role_costs: tuple = ()
 
     def __post_init__(self):

@@ -86,6 +86,7 @@ import dataclasses
 import math
 import os
 import sys
+import time
 import types
 
 import numpy as np
@@ -109,6 +110,7 @@ _IDENTITY.setflags(write=False)  # shared by every call: a write would change ev
 MAX_SCREEN_PIXELS = 256
 # Longest wait for worker results before a stage's generator hands control back (the modal operator's tick).
 WAIT_SECONDS = 0.1
+DASK_CONNECT_SECONDS = 30
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
@@ -763,10 +765,13 @@ def _chunks(faces, size):
     return [faces[start:start + size] for start in range(0, len(faces), size)]
 
 
-def _run_chunks(kind, state, faces, workers, chunk_size):
-    """Yield ``(faces, output)`` per chunk, in worker processes or here, and None every ``WAIT_SECONDS`` while
-    the workers have nothing new."""
+def _run_chunks(kind, state, faces, workers, chunk_size, scheduler=None):
+    """Yield ``(faces, output)`` per chunk, in worker processes, on a Dask cluster or here, and None every
+    ``WAIT_SECONDS`` while the workers have nothing new."""
     chunks = _chunks(faces, chunk_size)
+    if scheduler is not None:
+        yield from _run_chunks_on_dask(kind, state, chunks, scheduler)
+        return
     if workers == 0:
         workers = os.cpu_count() or 1
     workers = min(workers, len(chunks))
@@ -799,6 +804,45 @@ def _run_chunks(kind, state, faces, workers, chunk_size):
         pool.terminate()
 
 
+def _run_chunks_on_dask(kind, state, chunks, scheduler):
+    """The chunks as tasks of the Dask cluster at ``scheduler``: the shared arrays are sent to every worker
+    once, each task returns plain arrays, and the per-face seeds make the results those of a local run."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ValueError("sending the triangle-wise stage to a Dask scheduler needs Dask: "
+                         "pip install dask distributed") from None
+    try:
+        client = Client(scheduler, set_as_default=False, timeout=DASK_CONNECT_SECONDS)
+    except (OSError, TimeoutError) as error:
+        raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {error}") from None
+    futures = []
+    try:
+        [shared] = client.scatter([state], broadcast=True)
+        futures = [client.submit(_dask_chunk, shared, kind, chunk, pure=False) for chunk in chunks]
+        pending, last = set(futures), time.monotonic()
+        while pending:
+            finished = [future for future in pending if future.done()]
+            if not finished:
+                time.sleep(min(0.02, WAIT_SECONDS))
+                if time.monotonic() - last >= WAIT_SECONDS:
+                    last = time.monotonic()
+                    yield None
+                continue
+            for future in finished:
+                pending.discard(future)
+                last = time.monotonic()
+                yield future.result()  # a task that failed raises its error here
+    finally:
+        for future in futures:
+            future.cancel()
+        client.close()
+
+
+def _dask_chunk(state, kind, faces):
+    return (_optimize_chunk if kind == "optimize" else _losses_chunk)(state, faces)
+
+
 def _chunk_call(task):
     return _worker_task(*task)
 
@@ -819,7 +863,8 @@ def _check_mesh(V, F, uv, luma, faces):
 
 def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
                             max_screen_pixels=MAX_SCREEN_PIXELS, lambda_min=LAMBDA_MIN, formulation=None,
-                            backend="fast", workers=0, seed=0, faces=None, chunk_size=16, view_faces="window"):
+                            backend="fast", workers=0, seed=0, faces=None, chunk_size=16, view_faces="window",
+                            scheduler=None):
     """Generator form of :func:`optimize_triangles`: yields ``(done, total)`` faces, returns the result.
 
     Use ``result = yield from iter_optimize_triangles(...)`` in a pipeline generator, or drive it one step per
@@ -843,7 +888,8 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
     feasible, constant, unevaluated = np.zeros(total, bool), np.zeros(total, bool), np.zeros(total, bool)
     done = 0
     yield done, total
-    with contextlib.closing(_run_chunks("optimize", state, faces, int(workers), int(chunk_size))) as chunks:
+    with contextlib.closing(_run_chunks("optimize", state, faces, int(workers), int(chunk_size),
+                                        scheduler)) as chunks:
         for item in chunks:
             if item is None:
                 yield done, total
@@ -860,7 +906,8 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
 
 def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
                        max_screen_pixels=MAX_SCREEN_PIXELS, lambda_min=LAMBDA_MIN, formulation=None, backend="fast",
-                       workers=0, seed=0, faces=None, chunk_size=16, progress=None, view_faces="window"):
+                       workers=0, seed=0, faces=None, chunk_size=16, progress=None, view_faces="window",
+                       scheduler=None):
     """Triangle-wise stage: optimal deformation and sensitivity weights of every triangle.
 
     Parameters
@@ -905,6 +952,10 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
         Faces each view draws (:func:`.loss.prepare_triangles`): ``"window"`` (default) the one-ring and the
         faces connected to it that reach into the window; ``"one_ring"`` the triangle and its one-ring only,
         as App. A. See the module notes for the paper's settings as a whole.
+    scheduler : str, optional
+        Address of a Dask scheduler (``tcp://host:8786``): the chunks run as tasks of that cluster, every
+        worker of it at once (``workers`` is then unused). The cluster's workers need this package and its
+        dependencies; the results are those of a local run with the same seed.
 
     Returns
     -------
@@ -918,7 +969,7 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
                                     screen_pixels=screen_pixels, max_screen_pixels=max_screen_pixels,
                                     lambda_min=lambda_min, formulation=formulation,
                                     backend=backend, workers=workers, seed=seed, faces=faces,
-                                    chunk_size=chunk_size, view_faces=view_faces)
+                                    chunk_size=chunk_size, view_faces=view_faces, scheduler=scheduler)
     return run_generator(stage, progress)
 
 
@@ -934,7 +985,7 @@ def _params_from_jacobians(J):
 
 
 def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
-                   workers=1, chunk_size=64, view_faces="window"):
+                   workers=1, chunk_size=64, view_faces="window", scheduler=None):
     """Generator form of :func:`losses_at`: yields ``(done, total)`` faces (again every ``WAIT_SECONDS`` while
     workers compute), returns the losses."""
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
@@ -954,7 +1005,7 @@ def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixel
     if valid.any():
         params[valid] = _params_from_jacobians(J[valid])
     return (yield from _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers,
-                                    chunk_size, view_faces))
+                                    chunk_size, view_faces, scheduler))
 
 
 def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
@@ -991,7 +1042,7 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
 
 
 def iter_losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
-                   workers=1, chunk_size=64, view_faces="window"):
+                   workers=1, chunk_size=64, view_faces="window", scheduler=None):
     """Generator form of :func:`losses_of`: yields ``(done, total)`` faces (again every ``WAIT_SECONDS`` while
     workers compute), returns the losses."""
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
@@ -1001,7 +1052,7 @@ def iter_losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixel
     every = np.full((len(F), 4), np.inf)
     every[faces] = params
     return (yield from _iter_losses(V, F, uv, luma, every, faces, screen_pixels, max_screen_pixels, workers,
-                                    chunk_size, view_faces))
+                                    chunk_size, view_faces, scheduler))
 
 
 def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
@@ -1028,7 +1079,7 @@ def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX
 
 
 def _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
-                 view_faces="window"):
+                 view_faces="window", scheduler=None):
     """E of ``params`` (m, 4), a row per face of the mesh, at ``faces``, in worker processes; yields
     ``(done, total)`` faces and returns the losses."""
     state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, {"params": params[:, None, :]},
@@ -1037,7 +1088,8 @@ def _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels
     row_of = {int(face): row for row, face in enumerate(faces)}
     done = 0
     yield done, len(faces)
-    with contextlib.closing(_run_chunks("losses", state, faces, int(workers), int(chunk_size))) as chunks:
+    with contextlib.closing(_run_chunks("losses", state, faces, int(workers), int(chunk_size),
+                                        scheduler)) as chunks:
         for item in chunks:
             if item is not None:
                 chunk, values = item

@@ -56,6 +56,16 @@ def test_optimize_defaults_follow_the_design_contract():
     assert settings.max_screen_pixels == 256
     capped = parse_args(["optimize", str(SPOT), "--out", "x.blend", "--max-screen-pixels", "64"]).settings
     assert capped.max_screen_pixels == 64
+    assert settings.scheduler is None and settings.reuse_triangle_results and settings.role_costs == ()
+
+
+def test_scheduler_fresh_and_role_costs_reach_the_settings():
+    settings = parse_args(["optimize", str(SPOT), "--out", "x.blend", "--scheduler", "tcp://host:8786", "--fresh",
+                           "--cost-for", "normal=0.2", "--cost-for", "emissive=0.1"]).settings
+    assert settings.scheduler == "tcp://host:8786" and not settings.reuse_triangle_results
+    assert settings.role_costs == (("normal", 0.2), ("emissive", 0.1))
+    batch = parse_args(["batch", str(SPOT), "--out", "library", "--scheduler", "tcp://host:8786"])
+    assert batch.scheduler == "tcp://host:8786" and batch.settings.scheduler is None  # each asset runs locally
 
 
 def test_cost_and_resolution_are_exclusive():
