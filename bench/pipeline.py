@@ -9,7 +9,8 @@ Each model runs in a fresh process (``--models`` takes model folders or files) a
 the pipeline generator the way the modal operator does: one ``next`` per step. Printed per model and revision:
 the stage times of the report (``read`` is everything before the triangle-wise stage), the triangle-wise stage
 in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
-freezes for as long as one step takes), and the peak resident memory of the run's whole process tree (the
+freezes for as long as one step takes; the five longest, with the message of the step they follow, go to
+``--json``), and the peak resident memory of the run's whole process tree (the
 pipeline process and its worker processes, sampled every 0.1 s).
 
 With ``--against REV`` the same models also run on another git revision of this repository, checked out once
@@ -66,23 +67,21 @@ def run_pipeline(path, settings_options):
     known = {name: value for name, value in settings_options.items()  # an older revision may lack a setting
              if name in OptimizeSettings.__dataclass_fields__}
     pipeline = optimize_objects(objects, OptimizeSettings(**known), output_dir=output_dir.name)
-    longest, longest_stage, steps = 0.0, None, 0
+    durations = []  # (seconds, stage and message of the step's start)
     step_started, stage = time.perf_counter(), "start"
     while True:
         try:
             progress = next(pipeline)
         except StopIteration as finished:
             result = finished.value
-            elapsed = time.perf_counter() - step_started
-            if elapsed > longest:
-                longest, longest_stage = elapsed, stage
+            durations.append((time.perf_counter() - step_started, stage))
             break
-        elapsed = time.perf_counter() - step_started
-        steps += 1
-        if elapsed > longest:
-            longest, longest_stage = elapsed, stage
-        stage = progress.stage
+        durations.append((time.perf_counter() - step_started, stage))
+        stage = f"{progress.stage}: {progress.message}"
         step_started = time.perf_counter()
+    durations.sort(reverse=True)
+    longest, longest_stage = durations[0]
+    steps = len(durations)
     output_dir.cleanup()
     report = result.report
     times = dict(report["times_s"])
@@ -91,7 +90,8 @@ def run_pipeline(path, settings_options):
     return {"model": str(path), "faces": report["faces"], "optimized_faces": optimized,
             "import_s": imported, "times_s": times,
             "triangle_ms_per_face": 1000 * times["triangle"] / max(optimized, 1),
-            "longest_step_s": longest, "longest_step_stage": longest_stage, "steps": steps,
+            "longest_step_s": longest, "longest_step_stage": longest_stage.split(":")[0], "steps": steps,
+            "longest_steps": [[round(seconds, 3), where] for seconds, where in durations[:5]],
             "resolution": report["resolution"], "relative_cost": report["relative_cost"]}
 
 
