@@ -350,7 +350,7 @@ def _loss_planes(records, texture):
     """The planes the triangle-wise loss sees (``core.loss_planes``), one map after the other: the loss image
     (``texture``, already read) first, so its texel grid is the parameters' frame; colour maps as luma (and
     alpha), tangent-space normals as their shading, data maps per channel their material reads."""
-    from ..core.loss_planes import loss_planes
+    from ..core.loss_planes import PlaneStack, loss_planes
     from .mesh_io import read_image
 
     maps = []
@@ -363,9 +363,12 @@ def _loss_planes(records, texture):
         else:
             channels = tuple("RGBA".index(c) for c in record.channels if "RGBA".index(c) < pixels.shape[-1])
             maps.append({"role": "data", "pixels": pixels, "channels": channels or None, "name": record.role})
-    # Constant maps stay: the first plane's grid is the parameters' frame, and a plane constant under a view
-    # costs nothing.
-    return loss_planes(maps, drop_constant=False)
+    # The first plane stays whatever it holds: its texel grid is the parameters' frame (and the mesh-wise
+    # stage's). Later planes with one value over the whole image (an opaque base colour's alpha, a flat map) are
+    # left out: they cannot raise E, and with the loss image alone the single-plane path runs.
+    stack = loss_planes(maps, drop_constant=False)
+    keep = [0] + [index for index in range(1, len(stack)) if stack[index].min() < stack[index].max()]
+    return PlaneStack([stack[index] for index in keep], [stack.names[index] for index in keep])
 
 
 def _side(image):
