@@ -214,7 +214,15 @@ def _envelope_cholesky_solve(env, offset, first, rhs, pivot_floor):
         for k in range(fi, i):
             s += env[bi + k] * env[bi + k]
         env[bi + i] = np.sqrt(_floored_pivot(env[bi + i] - s, pivot_floor))
-    # Forward substitution L y = rhs, then back substitution L^T x = y (column sweep).
+    _envelope_substitute(env, offset, first, rhs)
+
+
+@njit(fastmath=True)
+def _envelope_substitute(env, offset, first, rhs):
+    """Numba: overwrite ``rhs`` with the solution of ``L L^T x = rhs``, ``env`` the envelope factor that
+    :func:`_envelope_cholesky_solve` left: forward substitution ``L y = rhs``, then back substitution
+    ``L^T x = y`` (column sweep). Further right-hand sides of one factorization take this alone."""
+    count = rhs.shape[0]
     for i in range(count):
         fi = first[i]
         bi = offset[i] - fi
@@ -256,6 +264,16 @@ def _band_cholesky_solve(band, rhs, pivot_floor):
             row = j + k1
             for k2 in range(k1, m + 1):
                 band[row, k2 - k1] -= band[j, k2] * l1
+    _band_substitute(band, rhs)
+
+
+@njit(fastmath=True)
+def _band_substitute(band, rhs):
+    """Numba: overwrite ``rhs`` with the solution of ``L L^T x = rhs``, ``band`` the factor that
+    :func:`_band_cholesky_solve` left (forward, then back substitution). Further right-hand sides of one
+    factorization take this alone."""
+    count, width = band.shape
+    b = width - 1
     for j in range(count):
         y = rhs[j] / band[j, 0]
         rhs[j] = y

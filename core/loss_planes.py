@@ -265,17 +265,6 @@ def conjugate_params(params, ratio):
     return out
 
 
-def _rows(params):
-    params = np.asarray(params, dtype=np.float64)
-    if params.ndim == 1:
-        params = params[None, :]
-    if params.ndim != 2 or params.shape[1] != 4:
-        raise ValueError(f"params must have shape (k, 4) rows (alpha, lambda1, lambda2, beta), got {params.shape}")
-    if not np.isfinite(params).all():
-        raise ValueError("params must be finite")
-    return np.ascontiguousarray(params)
-
-
 def _aspect_ratio(shape, first):
     """``(w / w_0) / (h / h_0)``, exactly 1.0 for the same aspect ratio."""
     (h, w), (h0, w0) = shape, first
@@ -358,7 +347,9 @@ class StackProblem:
             ``E`` of plane ``j`` in column ``j``; exactly 0 for a plane that is not rendered (constant under the
             view and every row within the box, :attr:`active_planes`).
         """
-        params = _rows(params)
+        from .loss import _check_params  # .loss imports this module
+
+        params = _check_params(params)
         within = bool(np.all((np.abs(params[:, 1]) <= 1.0) & (np.abs(params[:, 2]) <= 1.0)))
         out = np.zeros((len(params), len(self.planes)))
         first_shape = self.planes[0].texture_shape

@@ -1,11 +1,12 @@
-"""Numba kernels of the loss over a stack of planes on one texel grid: one operator assembly, many planes.
+"""Numba kernels of the loss E over a stack of planes on one texel grid: one operator assembly, many planes.
 
 Planes of the same shape see the same texel-space points under a triangle's view and the same deformation,
 so the screen operator of Eq. 8-9, the re-bake's normal equations (Eq. 11) and their Cholesky factor are the
 same for all of them; only the right-hand sides (each plane's reference render) differ. One evaluation of
 ``P`` such planes pools the pixels into texel cells once, orders and factorizes once, and substitutes,
-renders and takes GMSD (Eq. 3, 5) per plane (:func:`_evaluate_planes_kernel`). :class:`.loss_planes.StackProblem`
-groups its active planes by shape and calls this for every group of two or more.
+renders and takes GMSD (Eq. 3, 5) per plane (:func:`_evaluate_planes_kernel`). The single-map loss
+(:func:`.loss._evaluate_kernel`) is the case P = 1; :class:`.loss_planes.StackProblem` groups its active
+planes by shape and calls this for every group of two or more.
 
 References
 ----------
@@ -14,71 +15,123 @@ Sun et al. 2022, Eq. 3, 5, 8-11.
 import numpy as np
 
 from ._jit import njit
-from .bake_lsq import (_apply_renumber, _band_cholesky_solve, _envelope_cholesky_solve, _group_by_component,
+from .bake_lsq import (_apply_renumber, _band_cholesky_solve, _band_substitute, _envelope_cholesky_solve,
+                       _envelope_first, _envelope_substitute, _first_occurrence_ids, _group_by_component,
                        _render_ids, _solve_normal_equations)
 from .gmsd import _covered_gmsd_kernel
-from .loss import _deformed_ids, _envelope_cost, _add_off_diagonal
 
 __all__ = []
 
 
-@njit(fastmath=True)
-def _band_substitute(band, rhs):
-    """Numba: overwrite ``rhs`` with the solution of ``L L^T x = rhs``, ``band`` the factor that
-    :func:`.bake_lsq._band_cholesky_solve` left (the same two sweeps)."""
-    count, width = band.shape
-    b = width - 1
-    for j in range(count):
-        y = rhs[j] / band[j, 0]
-        rhs[j] = y
-        m = min(b, count - 1 - j)
-        for k in range(1, m + 1):
-            rhs[j + k] -= band[j, k] * y
-    for j in range(count - 1, -1, -1):
-        m = min(b, count - 1 - j)
-        s = 0.0
-        for k in range(1, m + 1):
-            s += band[j, k] * rhs[j + k]
-        rhs[j] = (rhs[j] - s) / band[j, 0]
-
-
-@njit(fastmath=True)
-def _envelope_substitute(env, offset, first, rhs):
-    """Numba: overwrite ``rhs`` with the solution of ``L L^T x = rhs``, ``env`` the envelope factor that
-    :func:`.bake_lsq._envelope_cholesky_solve` left (the same two sweeps)."""
-    count = rhs.shape[0]
-    for i in range(count):
-        fi = first[i]
-        bi = offset[i] - fi
-        s = 0.0
-        for k in range(fi, i):
-            s += env[bi + k] * rhs[k]
-        rhs[i] = (rhs[i] - s) / env[bi + i]
-    for i in range(count - 1, -1, -1):
-        fi = first[i]
-        bi = offset[i] - fi
-        xi = rhs[i] / env[bi + i]
-        rhs[i] = xi
-        for k in range(fi, i):
-            rhs[k] -= env[bi + k] * xi
+@njit(inline="always")
+def _deform(px, py, a00, a01, a10, a11, cx, cy):
+    """Numba: ``A (p - c) + c`` for a texel-space point ``p``, as a continuous texel coordinate (texel ``t``
+    centred at ``t``, so bilinear lookups read ``floor`` and ``floor + 1``)."""
+    dx = px - cx
+    dy = py - cy
+    return a00 * dx + a01 * dy + cx - 0.5, a10 * dx + a11 * dy + cy - 0.5
 
 
 @njit
-def _rebake_render_cells_planes(points, references, box, a00, a01, a10, a11, cx, cy, w, h, ridge, rendered):
-    """Numba: :func:`.loss._rebake_render_cells` for ``P`` planes on one texel grid: one pooling pass, one
-    ordering and one Cholesky factorization, ``P`` right-hand sides (``references`` (P, count)), ``P``
-    renders into ``rendered`` (P, count). A copy of that kernel with the right-hand side widened: keep the two
-    in step."""
+def _deformed_ids(points, a00, a01, a10, a11, cx, cy, w, h):
+    """Numba: texel ids (first occurrence, local) and bilinear weights of the deformed points."""
+    count = points.shape[0]
+    base_x = np.empty(count, np.int64)
+    base_y = np.empty(count, np.int64)
+    weights = np.empty((count, 4))
+    min_x = min_y = np.iinfo(np.int64).max
+    max_x = max_y = np.iinfo(np.int64).min
+    for p in range(count):
+        x, y = _deform(points[p, 0], points[p, 1], a00, a01, a10, a11, cx, cy)
+        fx0 = np.floor(x)
+        fy0 = np.floor(y)
+        fx = x - fx0
+        fy = y - fy0
+        ix = int(fx0)
+        iy = int(fy0)
+        base_x[p] = ix
+        base_y[p] = iy
+        weights[p, 0] = (1.0 - fx) * (1.0 - fy)
+        weights[p, 1] = fx * (1.0 - fy)
+        weights[p, 2] = (1.0 - fx) * fy
+        weights[p, 3] = fx * fy
+        min_x = min(min_x, ix)
+        max_x = max(max_x, ix)
+        min_y = min(min_y, iy)
+        max_y = max(max_y, iy)
+    ids = np.empty((count, 4), np.int64)
+    if count == 0:
+        return ids, weights, np.zeros(0, np.int64)
+    width = max_x - min_x + 2
+    height = max_y - min_y + 2
+    if width <= w and height <= h and width * height <= 16 * count + 4096:
+        # No two cells of the box alias under REPEAT: the unwrapped cell is the texel's identity.
+        grid = np.full(width * height, -1, np.int64)
+        texel = np.empty(4 * count, np.int64)
+        n_texels = 0
+        for p in range(count):
+            for k in range(4):
+                gx = base_x[p] - min_x + (k & 1)
+                gy = base_y[p] - min_y + (k >> 1)
+                cell = gy * width + gx
+                t = grid[cell]
+                if t < 0:
+                    t = n_texels
+                    grid[cell] = t
+                    texel[t] = ((gy + min_y) % h) * w + (gx + min_x) % w
+                    n_texels += 1
+                ids[p, k] = t
+        return ids, weights, texel[:n_texels]
+    keys = np.empty((count, 4), np.int64)
+    for p in range(count):
+        for k in range(4):
+            keys[p, k] = ((base_y[p] + (k >> 1)) % h) * w + (base_x[p] + (k & 1)) % w
+    ids, texel = _first_occurrence_ids(keys)
+    return ids, weights, texel
+
+
+@njit
+def _envelope_cost(cell_tex, count):
+    """Envelope first columns of an ordering and the Cholesky work estimate ``sum (i - first[i])^2``."""
+    first = _envelope_first(cell_tex, count)
+    cost = 0
+    for i in range(count):
+        cost += (i - first[i]) * (i - first[i])
+    return first, cost
+
+
+@njit(inline="always")
+def _add_off_diagonal(env, offset, first, i, j, value):
+    if j > i:
+        i, j = j, i
+    env[offset[i] - first[i] + j] += value
+
+
+@njit
+def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w, h, ridge, rendered):
+    """Numba: deform, re-bake (Eq. 11) and re-render ``P`` planes in one sweep; False if the caller must fall
+    back.
+
+    ``references`` (P, count) holds each plane's reference render at the points, ``rendered`` (P, count)
+    receives the re-baked renders: the planes share the pooling, the ordering and the Cholesky factor, one
+    right-hand side each (:func:`.bake_lsq._band_substitute`, :func:`.bake_lsq._envelope_substitute`). One
+    plane (P = 1) is the single-map loss.
+
+    Pixels whose deformed points fall in the same texel cell (same 4 texels) are pooled first: each cell
+    keeps the sums of its 10 weight products and of 4 weighted targets per plane, so the normal equations
+    are assembled from cells instead of pixels (magnified footprints have ~10-20 pixels per cell). Texels are
+    numbered row by row along the shorter side of their bounding box, or in the order the pixels first read
+    them, whichever gives the smaller envelope (the first suits compact footprints, the second minified ones
+    where pixels read disjoint texel groups). Falls back when the footprint's box could alias under REPEAT
+    wrapping or is much larger than the pixel count.
+    """
     count = points.shape[0]
     n_planes = references.shape[0]
     # Conservative box of the deformed continuous coordinates from the corners of the input box.
     xlo = ylo = np.inf
     xhi = yhi = -np.inf
     for corner in range(4):
-        dx = (box[1] if corner & 1 else box[0]) - cx
-        dy = (box[3] if corner & 2 else box[2]) - cy
-        x = a00 * dx + a01 * dy + cx - 0.5
-        y = a10 * dx + a11 * dy + cy - 0.5
+        x, y = _deform(box[corner & 1], box[2 + (corner >> 1)], a00, a01, a10, a11, cx, cy)
         xlo = min(xlo, x)
         xhi = max(xhi, x)
         ylo = min(ylo, y)
@@ -109,10 +162,7 @@ def _rebake_render_cells_planes(points, references, box, a00, a01, a10, a11, cx,
     last_cell = -1
     c = -1
     for p in range(count):
-        dx = points[p, 0] - cx
-        dy = points[p, 1] - cy
-        x = a00 * dx + a01 * dy + cx - 0.5
-        y = a10 * dx + a11 * dy + cy - 0.5
+        x, y = _deform(points[p, 0], points[p, 1], a00, a01, a10, a11, cx, cy)
         x0 = np.floor(x)
         y0 = np.floor(y)
         frac[p, 0] = x - x0
@@ -145,57 +195,62 @@ def _rebake_render_cells_planes(points, references, box, a00, a01, a10, a11, cx,
                 n_cells += 1
             last_cell = cell
         pix_cell[p] = c
-    # Per-cell sums of the bilinear weight products; runs of pixels in one cell are summed in registers. The
-    # weights are (1 - fx, fx) x (1 - fy, fy), so the 10 products are 9 distinct products of the 3 entries
-    # of each factor's outer product (w0 w3 == w1 w2).
-    c = pix_cell[0] if count else -1
-    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = 0.0
-    srhs = np.zeros(4 * n_planes)
-    for p in range(count + 1):
-        if p == count or pix_cell[p] != c:
-            acc[c, 0] += s0
-            acc[c, 1] += s1
-            acc[c, 2] += s2
-            acc[c, 3] += s3
-            acc[c, 4] += s4
-            acc[c, 5] += s5
-            acc[c, 6] += s6
-            acc[c, 8] += s8
-            acc[c, 9] += s9
-            for q in range(4 * n_planes):
-                acc[c, 10 + q] += srhs[q]
-            if p == count:
-                break
-            s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = 0.0
-            srhs[:] = 0.0
-            c = pix_cell[p]
-        fx = frac[p, 0]
-        fy = frac[p, 1]
-        gx0 = 1.0 - fx
-        gy0 = 1.0 - fy
-        xa = gx0 * gx0
-        xb = gx0 * fx
-        xc = fx * fx
-        ya = gy0 * gy0
-        yb = gy0 * fy
-        yc = fy * fy
-        s0 += xa * ya
-        s1 += xc * ya
-        s2 += xa * yc
-        s3 += xc * yc
-        s4 += xb * ya
-        s5 += xa * yb
-        s6 += xb * yb
-        s8 += xc * yb
-        s9 += xb * yc
-        for q in range(n_planes):
+    # Per-cell sums of the bilinear weight products and, per plane, of the 4 weighted targets (the right-hand
+    # sides); runs of pixels in one cell are summed in registers. One sweep per plane, the first one takes the
+    # weight products too. The weights are (1 - fx, fx) x (1 - fy, fy), so the 10 products are 9 distinct
+    # products of the 3 entries of each factor's outer product (w0 w3 == w1 w2).
+    for q in range(n_planes):
+        first_sweep = q == 0
+        col = 10 + 4 * q
+        c = pix_cell[0]
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
+        for p in range(count + 1):
+            if p == count or pix_cell[p] != c:
+                if first_sweep:
+                    acc[c, 0] += s0
+                    acc[c, 1] += s1
+                    acc[c, 2] += s2
+                    acc[c, 3] += s3
+                    acc[c, 4] += s4
+                    acc[c, 5] += s5
+                    acc[c, 6] += s6
+                    acc[c, 8] += s8
+                    acc[c, 9] += s9
+                acc[c, col] += s10
+                acc[c, col + 1] += s11
+                acc[c, col + 2] += s12
+                acc[c, col + 3] += s13
+                if p == count:
+                    break
+                s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
+                c = pix_cell[p]
+            fx = frac[p, 0]
+            fy = frac[p, 1]
+            gx0 = 1.0 - fx
+            gy0 = 1.0 - fy
+            if first_sweep:
+                xa = gx0 * gx0
+                xb = gx0 * fx
+                xc = fx * fx
+                ya = gy0 * gy0
+                yb = gy0 * fy
+                yc = fy * fy
+                s0 += xa * ya
+                s1 += xc * ya
+                s2 += xa * yc
+                s3 += xc * yc
+                s4 += xb * ya
+                s5 += xa * yb
+                s6 += xb * yb
+                s8 += xc * yb
+                s9 += xb * yc
             t = references[q, p]
             tx0 = t * gx0
             tx1 = t * fx
-            srhs[4 * q] += tx0 * gy0
-            srhs[4 * q + 1] += tx1 * gy0
-            srhs[4 * q + 2] += tx0 * fy
-            srhs[4 * q + 3] += tx1 * fy
+            s10 += tx0 * gy0
+            s11 += tx1 * gy0
+            s12 += tx0 * fy
+            s13 += tx1 * fy
     # Texels touched, numbered along the shorter side of the texel box (ordering A); in sparse boxes, row by
     # row (sorted keys), then grouped by connected component below.
     tw = width + 1
@@ -336,13 +391,11 @@ def _rebake_render_cells_planes(points, references, box, a00, a01, a10, a11, cx,
     return True
 
 
-
-
 @njit
 def _evaluate_planes_kernel(params, points, pooled_index, box, references, reference_gradients, centre, w, h,
                             ridge, c_gmsd, use_cells):
-    """Numba: E of ``P`` planes on one texel grid, (k, 4) params -> (k, P); :func:`.loss._evaluate_kernel` with
-    the operator shared (``references`` (P, count), ``reference_gradients`` (P, m, m))."""
+    """Numba: E of ``P`` planes on one texel grid, (k, 4) params -> (k, P) (``references`` (P, count),
+    ``reference_gradients`` (P, m, m)); :func:`.loss._evaluate_kernel` is the case P = 1."""
     k = params.shape[0]
     n_planes = references.shape[0]
     out = np.empty((k, n_planes))
@@ -368,7 +421,7 @@ def _evaluate_planes_kernel(params, points, pooled_index, box, references, refer
         a01 = ca * s01 - sa * s11
         a10 = sa * s00 + ca * s01
         a11 = sa * s01 + ca * s11
-        done = count > 0 and use_cells and _rebake_render_cells_planes(
+        done = count > 0 and use_cells and _rebake_render_cells(
             points, references, box, a00, a01, a10, a11, centre[0], centre[1], w, h, ridge, rendered)
         if not done:
             ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1], w, h)

@@ -10,21 +10,9 @@ from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.loss_planes import (NORMAL_LIGHTS, PlaneStack, StackProblem, conjugate_params, loss_planes,
                                             normal_shading, texture_planes)
 
+from meshes import grid_mesh  # tests/ is on sys.path under pytest
+
 CENTRE_FACE = 36  # inside the 6 x 6 grid: its one-ring is complete
-
-
-def grid_mesh(cells=6, uv_low=0.25, uv_high=0.75):
-    """Flat square of ``2 cells^2`` triangles in z = 0, UVs an axis-aligned square of the texture."""
-    t = np.linspace(0.0, 1.0, cells + 1)
-    X, Y = np.meshgrid(t, t)
-    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
-    F = []
-    for i in range(cells):
-        for j in range(cells):
-            a = i * (cells + 1) + j
-            F += [[a, a + 1, a + cells + 2], [a, a + cells + 2, a + cells + 1]]
-    F = np.array(F, dtype=np.int64)
-    return V, F, (uv_low + (uv_high - uv_low) * V[:, :2])[F]
 
 
 def random_params(rng, k):

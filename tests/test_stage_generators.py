@@ -5,20 +5,13 @@ from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core.chartfit import fit_charts, iter_fit_charts
 from perceptual_uv.core.progress import run_generator
 
+from meshes import grid_mesh as _grid_mesh  # noqa: E402  (tests/ is on sys.path under pytest)
+
 SIZE = 64
 
 
 def grid_mesh(cells=2):
-    t = np.linspace(0.0, 1.0, cells + 1)
-    X, Y = np.meshgrid(t, t)
-    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
-    F = []
-    for i in range(cells):
-        for j in range(cells):
-            a = i * (cells + 1) + j
-            F += [[a, a + 1, a + cells + 2], [a, a + cells + 2, a + cells + 1]]
-    F = np.array(F, dtype=np.int64)
-    return V, F, (0.25 + 0.5 * V[:, :2])[F]
+    return _grid_mesh(cells)
 
 
 def texture():
