@@ -7,10 +7,7 @@ it created so far (UV map, images, material copies and their node groups, face a
 cancelled or failed run leaves the file exactly as it was (and deletes the new images' files if they were saved
 already). The original UV map, images, materials and mesh are never modified.
 
-Every map of the material moves (DESIGN decision 6): each image the materials read through the source UV map
-(``bridge.material``) is re-baked onto the new UV map (``bridge.bake.bake_maps``) at the same relative cost as the
-base colour, each relative to its own input size, and the material copies read every new image through the new
-UV map. The loss reads the base colour (``_source_image``).
+Every map of the material moves and the loss sees every map (:mod:`.material_copy`).
 """
 import contextlib
 import dataclasses
@@ -22,7 +19,9 @@ import numpy as np
 
 from ..core import cost as texel_cost
 from ..core.progress import RunProgress, format_seconds
-from .material import base_color_image_node, material_maps, read_material, read_object_materials
+from .material import base_color_image_node
+from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, image_side, image_stem, loss_planes_of, map_report,
+                            map_resolution, material_copies, read_maps, resolve_source_uv)
 
 __all__ = ["Progress", "STAGE_SHARES", "triangle_results", "PipelineResult", "optimize_objects", "run_to_end",
            "target_problem", "loss_ramp", "map_resolution", "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE", "COPY_PROPERTY"]
@@ -45,7 +44,6 @@ def triangle_results():
 LOSS_ATTRIBUTE = "perceptual_loss"
 LOSS_COLOR_ATTRIBUTE = "perceptual_loss_color"
 # Custom property of a material copy made by a run: the name of the material it was copied from.
-COPY_PROPERTY = "perceptual_uv_source"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -266,229 +264,6 @@ def _write_loss_attributes(obj, tri_polygons, losses, epsilon, created):
     colors.data.foreach_set("color", loss_ramp(polygon_loss, epsilon)[loop_polygon].ravel())
 
 
-def _render_uv(obj):
-    layers = obj.data.uv_layers
-    return next((layer.name for layer in layers if layer.active_render), layers[0].name if layers else None)
-
-
-def _copies_read(objects):
-    """{UV map: [(object, slot number, copy)]} for the slots holding a material copy made by an earlier run."""
-    found = {}
-    for obj in objects:
-        for index, slot in enumerate(obj.material_slots):
-            material = slot.material
-            if material is None or COPY_PROPERTY not in material:
-                continue
-            for record in material_maps(material, render_uv=_render_uv(obj)):
-                found.setdefault(record.uv_map, []).append((obj, index + 1, material))
-    return found
-
-
-def _resolve_source_uv(objects, source_uv):
-    """The UV map to read the maps through, for a first run or a run on the result of an earlier one.
-
-    After a run the slots hold object-linked copies (marked with :data:`COPY_PROPERTY`) that read the new images
-    through the new UV map, while the active UV map is still the old one. A second run optimizes what the
-    material shows: with no ``source_uv`` given, the UV map the copies read; given another one, it is refused.
-    """
-    copies = _copies_read(objects)
-    if not copies:
-        return source_uv if source_uv is not None else objects[0].data.uv_layers.active.name
-    if len(copies) > 1:
-        listing = "; ".join(f"'{material.name}' on '{obj.name}' reads UV map '{uv}'"
-                            for uv, users in sorted(copies.items(), key=lambda item: str(item[0]))
-                            for obj, _, material in users[:1])
-        raise ValueError(f"the material copies of earlier Optimize UVs runs read different UV maps ({listing}): "
-                         "optimize the objects of each run separately")
-    uv = next(iter(copies))
-    if source_uv is None or source_uv == uv:
-        return uv
-    obj, number, material = copies[uv][0]
-    original = material[COPY_PROPERTY]
-    raise ValueError(f"slot {number} of '{obj.name}' holds '{material.name}', made by an earlier Optimize UVs run "
-                     f"from '{original}': it reads its images through UV map '{uv}', not '{source_uv}'. Make "
-                     f"'{uv}' the active UV map (or pass --uv {uv}) to optimize the result again, or undo the "
-                     f"earlier run (or put '{original}' back in the slot) to start from the original")
-
-
-def _read_maps(objects, source_uv, loss_image):
-    """Every map the objects' materials read through ``source_uv``: one record per new image, the loss image's
-    first; notes on images left as they are. Refuses (ValueError) maps that cannot be re-baked."""
-    from .bake import bake_kind, transform_problem
-
-    records, notes = {}, []
-    for obj in objects:
-        for number, reading in enumerate(read_object_materials(obj, source_uv=source_uv), start=1):
-            for record in reading.maps:
-                image = record.image
-                where = f"the {record.role} map '{image.name}' of material '{reading.material.name}'"
-                if image.source in ("TILED", "MOVIE", "SEQUENCE"):
-                    kind = {"TILED": "a UDIM tiled image", "MOVIE": "a movie", "SEQUENCE": "an image sequence"}
-                    raise ValueError(f"{where} is {kind[image.source]}; only single still images can be re-baked "
-                                     "(bake it into one image first)")
-                if image.size[0] == 0 or image.size[1] == 0:
-                    path = bpy.path.abspath(image.filepath) if image.filepath else "(no file path)"
-                    raise ValueError(f"{where} has no pixels: its file {path} is missing or unreadable; fix the path "
-                                     "(Image > Replace) or pack the image")
-                if (problem := transform_problem(record)) is not None:
-                    raise ValueError(f"{where} cannot be re-baked: {problem}; move its Image Texture node and "
-                                     "coordinates out of the group, or bake the transform into the image first")
-                records.setdefault((image.as_pointer(), bake_kind(record)), record)
-            for record in reading.left_as_is:
-                name = reading.material.name if reading.material else "(none)"
-                notes.append(f"the {record.role} map '{record.image.name}' of material '{name}' (slot {number} of "
-                             f"'{obj.name}') stays as it is, not re-baked: " + "; ".join(record.notes))
-    key = (loss_image.as_pointer(), "emit")
-    if key not in records:
-        raise ValueError(f"the base colour image '{loss_image.name}' is not read through UV map '{source_uv}'; make "
-                         "the UV map its Image Texture node reads the active one")
-    ordered = [records.pop(key)] + list(records.values())
-    return ordered, list(dict.fromkeys(notes))
-
-
-def _loss_planes(records, texture):
-    """The planes the triangle-wise loss sees (``core.loss_planes``), one map after the other: the loss image
-    (``texture``, already read) first, so its texel grid is the parameters' frame; colour maps as luma (and
-    alpha), tangent-space normals as their shading, data maps per channel their material reads."""
-    from ..core.loss_planes import PlaneStack, loss_planes
-    from .mesh_io import read_image
-
-    maps = []
-    for index, record in enumerate(records):
-        pixels = np.clip(texture if index == 0 else read_image(record.image), 0.0, 1.0)  # float maps may exceed 1
-        if record.kind == "color":
-            maps.append({"role": "color", "pixels": pixels, "name": record.role})
-        elif record.kind == "tangent_normal":
-            maps.append({"role": "normal", "pixels": pixels[..., :3], "name": record.role})
-        else:
-            channels = tuple("RGBA".index(c) for c in record.channels if "RGBA".index(c) < pixels.shape[-1])
-            maps.append({"role": "data", "pixels": pixels, "channels": channels or None, "name": record.role})
-    # The first plane stays whatever it holds: its texel grid is the parameters' frame (and the mesh-wise
-    # stage's). Later planes with one value over the whole image (an opaque base colour's alpha, a flat map) are
-    # left out: they cannot raise E, and with the loss image alone the single-plane path runs.
-    stack = loss_planes(maps, drop_constant=False)
-    keep = [0] + [index for index in range(1, len(stack)) if stack[index].min() < stack[index].max()]
-    return PlaneStack([stack[index] for index in keep], [stack.names[index] for index in keep])
-
-
-def _side(image):
-    return float(np.sqrt(image.size[0] * image.size[1]))
-
-
-def map_resolution(resolution, input_side, reference_side, *, role_cost=None, reference_cost=None):
-    """Side of a map's new image: the base colour's relative cost (or ``role_cost``), relative to its own size.
-
-    Parameters
-    ----------
-    resolution : int
-        Side of the base colour's new image.
-    input_side, reference_side : float
-        The map's and the base colour's input sides (``sqrt(width * height)``).
-    role_cost, reference_cost : float, optional
-        A relative cost set for the map's role, and the base colour's measured one: the side is multiplied by
-        ``sqrt(role_cost / reference_cost)``.
-
-    Returns
-    -------
-    int
-        ``round(resolution * input_side / reference_side [* sqrt(role_cost / reference_cost)])``, in [8, 16384].
-    """
-    scale = input_side / reference_side
-    if role_cost is not None and reference_cost:
-        scale *= np.sqrt(role_cost / reference_cost)
-    return int(min(16384, max(MIN_RESOLUTION, round(resolution * scale))))
-
-
-def _stem(image):
-    stem = os.path.splitext(image.name)[0]
-    return stem[:-len("_perceptual")] if stem.endswith("_perceptual") else stem
-
-
-def _raw_bytes(width, height, alpha, is_float):
-    """Pixels x channels (3, or 4 with alpha) x bytes per channel (1, or 2 for 16-bit/float: saved as 16-bit PNG)."""
-    return int(width * height * (4 if alpha else 3) * (2 if is_float else 1))
-
-
-def _file_bytes(image):
-    if image.packed_file is not None:
-        return int(image.packed_file.size)
-    path = bpy.path.abspath(image.filepath_raw or image.filepath) if (image.filepath_raw or image.filepath) else ""
-    return int(os.path.getsize(path)) if path and os.path.isfile(path) else None
-
-
-_COORDINATE_NODES = frozenset({"UVMAP", "TEX_COORD", "MAPPING", "VECT_MATH", "VECTOR_ROTATE", "SEPXYZ", "COMBXYZ",
-                               "MATH", "MAP_RANGE", "CLAMP", "REROUTE", "VALUE"})
-
-
-def _remove_unused_coordinates(tree, node):
-    """Remove ``node`` and the coordinate nodes feeding it once nothing reads them (the new image already holds
-    a texture transform the old coordinates applied)."""
-    if node.type not in _COORDINATE_NODES or any(output.links for output in node.outputs):
-        return
-    upstream = list(dict.fromkeys(link.from_node.name for socket in node.inputs for link in socket.links))
-    tree.nodes.remove(node)
-    for name in upstream:
-        if (source := tree.nodes.get(name)) is not None:
-            _remove_unused_coordinates(tree, source)
-
-
-def _repoint(node, image, uv_name):
-    """Make an Image Texture node read ``image`` through a UV Map node on ``uv_name``, nothing else."""
-    tree = node.id_data
-    vector = node.inputs["Vector"]
-    for link in list(vector.links):
-        source = link.from_node
-        tree.links.remove(link)
-        _remove_unused_coordinates(tree, source)
-    node.image = image
-    uv_node = tree.nodes.new("ShaderNodeUVMap")
-    uv_node.uv_map = uv_name
-    uv_node.location = node.location[0] - 200, node.location[1]
-    uv_node.parent = node.parent
-    tree.links.new(uv_node.outputs["UV"], vector)
-
-
-def _material_copies(objects, baked, uv_name, source_uv, created):
-    """Copies of the objects' materials that read every re-baked image through ``uv_name``, linked per object.
-
-    ``baked`` maps (image pointer, bake kind) to the new image. In each copy every Image Texture node of a baked
-    map reads its new image through a UV Map node on ``uv_name``, and tangent-space Normal Map nodes on the
-    source UV map take their tangents from ``uv_name``: no node of the copy reads ``source_uv``. Node groups
-    holding such nodes are copied with the material. Each copy carries :data:`COPY_PROPERTY`.
-    """
-    from .bake import _all_nodes, bake_kind, localize_node_groups
-
-    copies = {}
-    for obj in objects:
-        render_uv = _render_uv(obj)
-        readings = read_object_materials(obj, source_uv=source_uv)
-        for index, (slot, reading) in enumerate(zip(obj.material_slots, readings)):
-            material = slot.material
-            if not any((record.image.as_pointer(), bake_kind(record)) in baked for record in reading.maps):
-                continue
-            if material not in copies:
-                copy = material.copy()
-                original = material.get(COPY_PROPERTY, material.name)
-                copy.name = f"{original}_perceptual"
-                copy[COPY_PROPERTY] = original
-                created.materials.append(copy)
-                localize_node_groups(copy.node_tree, created.node_groups)
-                for record in read_material(copy, source_uv=source_uv, render_uv=render_uv).maps:
-                    new = baked.get((record.image.as_pointer(), bake_kind(record)))
-                    if new is not None:
-                        for node in record.nodes:
-                            _repoint(node, new, uv_name)
-                for node in _all_nodes(copy.node_tree):
-                    if node.type == "NORMAL_MAP" and node.space == "TANGENT" and (
-                            node.uv_map == source_uv or (not node.uv_map and render_uv == source_uv)):
-                        node.uv_map = uv_name
-                copies[material] = copy
-            created.slot_links.append((obj, index, slot.material, slot.link))
-            slot.link = "OBJECT"  # the mesh's own material list (shared with other objects) stays as it was
-            slot.material = copies[material]
-    return list(copies.values())
-
-
 def _save_or_pack(image, output_dir):
     """Save next to the .blend (or into ``output_dir``); pack into the file when there is nowhere to save.
 
@@ -578,7 +353,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         if problem:
             raise ValueError(problem)
     objects, shared_notes = _one_object_per_mesh(objects)
-    source_uv = _resolve_source_uv(objects, source_uv)
+    source_uv = resolve_source_uv(objects, source_uv)
     for obj in objects:
         if source_uv not in obj.data.uv_layers:
             raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}'")
@@ -598,11 +373,11 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     try:
         yield step("read", 0, 1, "Reading mesh and texture")
         image, validated, notes = _read_objects(objects, source_uv, settings)
-        records, map_notes = _read_maps(objects, source_uv, image)  # refused here, before the run
+        records, map_notes = read_maps(objects, source_uv, image)  # refused here, before the run
         notes += map_notes
         mesh, texture, faces = validated.mesh, validated.texture, validated.faces
         V, F, uv_in = mesh.V, mesh.F, mesh.uv
-        planes = _loss_planes(records, texture)  # every map the loss sees, the loss image's first
+        planes = loss_planes_of(records, texture)  # every map the loss sees, the loss image's first
         height, width = texture.shape[:2]
         m = len(F)
         per_object = [mesh.object_index == index for index in range(len(objects))]
@@ -681,15 +456,15 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         for number, record in enumerate(records):
             override = role_cost(settings.role_costs, record.role)
             side = (resolution if number == 0 and override is None else
-                    map_resolution(resolution, _side(record.image), _side(image), role_cost=override,
+                    map_resolution(resolution, image_side(record.image), image_side(image), role_cost=override,
                                    reference_cost=reference_cost))
             margin = 0 if settings.margin == 0 else max(1, round(settings.margin * side / resolution))
             if number == 0:
-                name = settings.image_name or f"{_stem(image)}_perceptual"
+                name = settings.image_name or f"{image_stem(image)}_perceptual"
             elif settings.image_name:
                 name = f"{settings.image_name}_{record.role}"
             else:
-                name = f"{_stem(record.image)}_perceptual"
+                name = f"{image_stem(record.image)}_perceptual"
             yield step("bake", number, len(records), f"Baking the {record.role.replace('_', ' ')} map "
                        f"({number + 1}/{len(records)}): {side} x {side}")
             (result,) = bake_maps(objects, [record], source_uv=source_uv, target_uv=uv_name, resolutions=[side],
@@ -704,7 +479,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         for obj, rows in zip(objects, per_object):
             _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
 
-        materials = (_material_copies(objects, baked, uv_name, source_uv, created) if settings.use_material_copy
+        materials = (material_copies(objects, baked, uv_name, source_uv, created) if settings.use_material_copy
                      else [])
         warnings, maps_report = [], []
         saved = None
@@ -716,7 +491,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                 warnings.append(warning)
             if number == 0:
                 saved = path
-            maps_report.append(_map_report(result, path))
+            maps_report.append(map_report(result, path))
         before = sum(entry["raw_bytes_before"] for entry in maps_report)
         after = sum(entry["raw_bytes_after"] for entry in maps_report)
         files_before = [entry["file_bytes_before"] for entry in maps_report]
@@ -765,27 +540,6 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         raise
 
 
-def _map_report(result, path):
-    """One entry of the report's "maps": role, sizes, raw and file bytes before and after."""
-    source, image = result.record.image, result.image
-    width, height = source.size
-    return {
-        "role": result.record.role,
-        "kind": result.kind,
-        "channels": result.record.channels,
-        "colorspace": result.record.colorspace,
-        "image": source.name,
-        "new_image": image.name,
-        "new_image_file": path,
-        "input_size": [int(width), int(height)],
-        "new_size": [int(image.size[0]), int(image.size[1])],
-        "raw_bytes_before": _raw_bytes(width, height, result.alpha, source.is_float),
-        "raw_bytes_after": _raw_bytes(image.size[0], image.size[1], result.alpha, image.is_float),
-        "file_bytes_before": _file_bytes(source),
-        "file_bytes_after": _file_bytes(image),
-    }
-
-
 def _overlap_report(uv, face_chart):
     """Triangle pairs whose packed UV images overlap, within and between charts (core.overlap)."""
     from ..core.overlap import count_overlaps
@@ -807,7 +561,6 @@ def _relay(stage, name, label, started, step):
         yield step(name, done, total, f"{label}: {done}/{total}{left}")
 
 
-MIN_RESOLUTION = 8
 
 
 def _pack(uv_in, uv_fit, face_chart, input_size, settings):
