@@ -1,14 +1,14 @@
 """Packing UV charts into a square image with translations and quarter turns, on the image's pixel grid.
 
 Each chart is drawn at a fixed texel density into a bitmap of the pixels it touches (conservative raster),
-grown by half the margin on every side; the bitmaps, largest first, are placed bottom-left first in a strip,
-each in the quarter turn whose top edge ends lowest. Charts move by whole pixels, so the gap between two charts
+grown by half the margin on every side; the bitmaps, largest first, are placed bottom-left in a square strip,
+each in the quarter turn whose top edge ends lowest, and the smallest square that holds them all is searched. Charts move by whole pixels, so the gap between two charts
 is at least the margin in pixels of the final image, and nothing rotates by other angles or shears (paper Sec.
 5.1, "Texture packing": the orientation the mesh-wise stage chose relative to the texel grid is kept).
 
 The texel density is what the cost fixes (Eq. 20-21): at ``d`` pixels per unit of the fitted UV map, a chart
 of fitted area ``a`` covers ``d^2 a`` texels whatever the image size, so the image side is simply the side of
-the packed strip. With an explicit resolution the density is searched instead.
+that square. With an explicit resolution the density is searched instead.
 """
 import dataclasses
 
@@ -161,7 +161,7 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
                          "unit; lower the target cost or set an explicit resolution")
     order = np.argsort(face_chart, kind="stable")
     starts = np.searchsorted(face_chart[order], np.arange(count + 1))
-    bitmaps = []  # per chart: four (rows, spans, origin) for 0..3 quarter turns
+    bitmaps = []  # per chart: (bitmap, origin) for 0..3 quarter turns
     total = 0
     for chart in range(count):
         pixels = uv[order[starts[chart]:starts[chart + 1]]] * density
@@ -175,6 +175,7 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
     sizes = np.array([bitmaps[c][0][0].sum() for c in range(count)])
     chart_order = np.argsort(-sizes, kind="stable")
     narrowest = max(min(grid.shape) for grid, _ in (turns[0] for turns in bitmaps))
+
     def square(side):  # a strip ``side`` wide filled bottom-left; the packing if it is no higher
         if side < narrowest or side > _MAX_SIDE:
             return None
