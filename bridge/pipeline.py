@@ -67,9 +67,9 @@ class Progress:
         return f"{self.message} · {self.fraction:.0%} of the run{left}"
 
 
-# Expected share of a run's time per stage, in the order they run: the mean shares of spot, bob, BoomBox and
-# CesiumMan at the default settings on 2 workers (bench/pipeline.py).
-STAGE_SHARES = {"read": 0.01, "triangle": 0.78, "mesh": 0.17, "pack": 0.02, "bake": 0.02, "loss": 0.0, "done": 0.0}
+# Expected share of a run's time per stage, in the order they run: the mean shares of spot, bob, CesiumMan and
+# BoomBox at the default settings on 2 workers (bench/pipeline.py; README "How long it takes").
+STAGE_SHARES = {"read": 0.01, "triangle": 0.74, "mesh": 0.23, "pack": 0.01, "bake": 0.01, "loss": 0.0, "done": 0.0}
 
 
 @dataclasses.dataclass
