@@ -153,14 +153,18 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
 def _pack_at(uv, face_chart, count, density, margin, *, max_side):
     """Pack at ``density`` into the smallest square found, or into ``max_side`` (None if the charts do not fit)."""
     grow = (margin + 1) // 2
-    extent = (uv.reshape(-1, 2).max(axis=0) - uv.reshape(-1, 2).min(axis=0)).max() * density
+    order = np.argsort(face_chart, kind="stable")
+    starts = np.searchsorted(face_chart[order], np.arange(count + 1))
+    # Where the charts lie relative to each other does not count (they are moved), only each chart's own extent
+    # and their total area.
+    low = np.minimum.reduceat(uv[order].min(axis=1), starts[:-1])  # (count, 2) per chart
+    high = np.maximum.reduceat(uv[order].max(axis=1), starts[:-1])
+    extent = (high - low).max() * density
     if extent > _MAX_SIDE or np.sqrt(np.abs(signed_uv_areas(uv)).sum()) * density > _MAX_SIDE:
         if max_side is not None:
             return None
         raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
                          "unit; lower the target cost or set an explicit resolution")
-    order = np.argsort(face_chart, kind="stable")
-    starts = np.searchsorted(face_chart[order], np.arange(count + 1))
     bitmaps = []  # per chart: (bitmap, origin) for 0..3 quarter turns
     total = 0
     for chart in range(count):

@@ -4,8 +4,10 @@
 The child writes into the asset's output folder, which exists only while the child runs or once it succeeded:
 an earlier result in that folder is moved aside to ``.NAME.previous`` first, deleted when the new one is
 complete and put back when it is not. A timeout or a cancelled run terminates the child (SIGTERM: it removes
-its own partial files, exit 130), then kills it after a grace period. On Linux the child also gets SIGTERM when
-the worker thread that started it dies, so a killed worker leaves no orphan running.
+its own partial files, exit 130), then kills it after a grace period. On Linux the child is killed (SIGKILL)
+when the worker thread that started it dies, so a killed worker leaves no orphan running: an orphan told to
+stop with SIGTERM could miss it (a signal that arrives while numba compiles a kernel is lost) and go on writing
+into the folder of the next attempt.
 """
 import contextlib
 import datetime
@@ -55,11 +57,11 @@ def optimize_command(input_path, out, report, options, *, blender=None):
 
 
 def _die_with_parent():
-    """preexec_fn: SIGTERM this child when the thread that started it dies (Linux prctl PR_SET_PDEATHSIG)."""
+    """preexec_fn: SIGKILL this child when the thread that started it dies (Linux prctl PR_SET_PDEATHSIG)."""
     try:
         import ctypes
 
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)
     except (OSError, AttributeError):
         pass
 

@@ -55,7 +55,7 @@ def test_killed_child_or_worker_is_retried_and_the_asset_completes(tmp_path, vic
     wait_for_log(out / "logs" / "spot.obj.log", "[triangle]")
     worker = child.parent()
     (worker if victim == "worker" else child).send_signal(signal.SIGKILL)
-    if victim == "worker":  # the orphaned child is told to stop (PR_SET_PDEATHSIG) and does
+    if victim == "worker":  # the orphaned child is killed with its worker (PR_SET_PDEATHSIG)
         child.wait(timeout=60)
     _, err = batch.communicate(timeout=600)
     assert batch.returncode == 0, err[-3000:]

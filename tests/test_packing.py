@@ -110,6 +110,15 @@ def test_explicit_resolution_keeps_the_margin():
             assert np.maximum(low_j - high_i, low_i - high_j).max() >= 4 - 1e-9
 
 
+def test_charts_far_apart_pack_as_if_they_were_close():
+    # Where the charts lie before packing does not count: 1e6 UV units apart, the same 16 px image as side by side.
+    near, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])
+    far, _ = charts_of([(0, 0, 1, 1), (1e6, 0, 1, 1), (0, -1e6, 1, 1), (1e6, 1e6, 1, 1)])
+    assert pack_charts(far, face_chart, margin=0, texels_per_unit=8).resolution == 16
+    np.testing.assert_allclose(pack_charts(far, face_chart, margin=0, texels_per_unit=8).uv,
+                               pack_charts(near, face_chart, margin=0, texels_per_unit=8).uv, atol=1e-9)
+
+
 def test_zero_area_triangles_go_with_their_chart():
     uv, face_chart = charts_of([(0, 0, 1, 1), (2, 0, 1, 1)])
     sliver = np.array([[[0.5, 0.5], [0.5, 0.5], [0.5, 0.5]]])  # a degenerate triangle inside chart 0
