@@ -84,9 +84,7 @@ def _emission_material(created, source_uv, image, constant, channel, target):
     created.append(material)
     tree = material.node_tree
     tree.nodes.clear()
-    emission = tree.nodes.new("ShaderNodeEmission")
-    output = tree.nodes.new("ShaderNodeOutputMaterial")
-    tree.links.new(emission.outputs["Emission"], output.inputs["Surface"])
+    emission = _emission_output(tree, target)
     if image is None:
         value = constant[3] if channel == "ALPHA" else constant[:3]
         emission.inputs["Color"].default_value = (value,) * 3 + (1.0,) if channel == "ALPHA" else (*value, 1.0)
@@ -99,10 +97,20 @@ def _emission_material(created, source_uv, image, constant, channel, target):
         texture.image, texture.interpolation, texture.extension = raw, "Linear", "REPEAT"
         tree.links.new(uv_node.outputs["UV"], texture.inputs["Vector"])
         tree.links.new(texture.outputs["Alpha" if channel == "ALPHA" else "Color"], emission.inputs["Color"])
+    return material
+
+
+def _emission_output(tree, target):
+    """An Emission shader feeding a new active Material Output, and an active Image Texture node holding the bake
+    target ``target``; returns the Emission node (what it emits is the caller's)."""
+    emission = tree.nodes.new("ShaderNodeEmission")
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    output.is_active_output = True
+    tree.links.new(emission.outputs["Emission"], output.inputs["Surface"])
     target_node = tree.nodes.new("ShaderNodeTexImage")
     target_node.image = target
     tree.nodes.active = target_node
-    return material
+    return emission
 
 
 def _slot_sources(obj):
@@ -471,14 +479,8 @@ def _transformed_emission(created, material, node_name, channel, target):
     node.image = raw
     for output in [output for output in tree.nodes if output.type == "OUTPUT_MATERIAL"]:
         tree.nodes.remove(output)
-    emission = tree.nodes.new("ShaderNodeEmission")
-    output = tree.nodes.new("ShaderNodeOutputMaterial")
-    output.is_active_output = True
-    tree.links.new(emission.outputs["Emission"], output.inputs["Surface"])
+    emission = _emission_output(tree, target)
     tree.links.new(node.outputs["Alpha" if channel == "ALPHA" else "Color"], emission.inputs["Color"])
-    target_node = tree.nodes.new("ShaderNodeTexImage")
-    target_node.image = target
-    tree.nodes.active = target_node
     return copy
 
 
