@@ -63,7 +63,7 @@ TRIANGLE_OPTIONS = {"paper": PAPER_TRIANGLES}
 
 _PACKED = ("bridge.pack", "bridge.baselines:_check", "bridge.baselines:_pack", "bridge.baselines:_write",
            "bridge.baselines:_texture", "bridge.baselines:PACK_MARGIN_PIXELS")
-_FINISHED = _PACKED + ("core.charts", "core.overlap", "core.meshwise", "bridge.baselines:finish_charts",
+_FINISHED = _PACKED + ("core.charts", "core.overlap", "core.meshwise", "core.chartfit:finish_charts",
                        "bridge.baselines:_finished", "bridge.baselines:_post_counts")
 _OURS = _FINISHED + ("core.chartfit", "core.trianglewise", "core.loss", "core.ssp",
                      "bridge.baselines:perceptual_uv", "bridge.baselines:triangle_targets",

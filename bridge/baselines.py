@@ -3,8 +3,9 @@
 Every function adds one UV map (the input UV map, image, materials and mesh stay as they were; Blender's
 unwrap runs on temporary copies of the objects) and packs it with 90-degree rotations only
 (:func:`bridge.pack.pack_uv_layer`, DESIGN decision 7). Before packing, every method's charts get the same
-post-processing (:func:`finish_charts`: folded charts keep their input layout, every chart is turned rigidly to
-its rotation targets), so that a comparison measures the methods and not whether they were given the fallbacks.
+post-processing (:func:`core.chartfit.finish_charts`: folded charts keep their input layout, every chart is
+turned rigidly to its rotation targets), so that a comparison measures the methods and not whether they were
+given the fallbacks.
 
 References
 ----------
@@ -19,11 +20,11 @@ import time
 import bpy
 import numpy as np
 
-from ..core.chartfit import fit_charts
+from ..core.chartfit import finish_charts, fit_charts
 from ..core.charts import uv_topology
 from ..core.loss import above_bound, texture_luma
-from ..core.meshwise import orient_charts, solve_meshwise
-from ..core.overlap import FOLD_TOLERANCE, restore_folded_charts
+from ..core.meshwise import solve_meshwise
+from ..core.overlap import FOLD_TOLERANCE
 from ..core.ssp import solve_ssp, ssp_targets
 from ..core.trianglewise import (MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult, losses_at,
                                  losses_of, optimize_triangles)
@@ -32,7 +33,7 @@ from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
 from .material import base_color_image_node
 
-__all__ = ["BLENDER_METHODS", "finish_charts", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv",
+__all__ = ["BLENDER_METHODS", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv",
            "perceptual_uv", "triangle_targets"]
 
 BLENDER_METHODS = ("ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH")
@@ -64,59 +65,6 @@ def _write(objects, name, uv_all):
         m = len(arrays.F)
         write_uv_layer(obj, name, uv_all[start:start + m], arrays.tri_loops)
         start += m
-
-
-def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scale=(1.0, 1.0)):
-    """The post-processing of every method's charts before packing: the fold restore, then the chart turn.
-
-    Folded charts get their input layout back at their new size (:func:`core.overlap.restore_folded_charts`);
-    then every chart is turned rigidly to the angle that best meets its rotation targets
-    (:func:`core.meshwise.orient_charts`, which changes no stretch and no fold). These are the two steps
-    :func:`core.chartfit.fit_charts` applies to each of its fits, in that order and with the same functions.
-
-    Parameters
-    ----------
-    uv_in : (m, 3, 2) array_like of float
-        Input UVs per face corner.
-    uv_new : (m, 3, 2) array_like of float
-        The method's UVs of the same charts, before packing.
-    face_chart : (m,) array_like of int
-        Chart of every face in the input (``uv_topology(F, uv_in).face_chart``).
-    alpha, w_R : (m,) array_like of float, optional
-        The method's own rotation targets (angles to the input's texel grid) and their weights. Without them,
-        ``alpha = 0`` and ``w_R = 1``: every chart is turned back to the input's texel grid, weighing its
-        triangles by their input area.
-    texel_scale : (2,) array_like of float, optional
-        Texels per UV unit of the input texture along u and v.
-
-    Returns
-    -------
-    uv : (m, 3, 2) float64 ndarray
-    restored : (k,) int64 ndarray
-        Charts given their input layout.
-    angles : (n_charts,) float64 ndarray
-        The turn of every chart.
-
-    Notes
-    -----
-    Each method is turned towards its own targets. Ours has them: the triangle-wise optimum's rotation
-    ``alpha`` with Eq. 17's ``w_R``. SSP, SSPOP (``w_R = 0``, paper Sec. 5.2.2) and Blender's unwraps carry
-    no rotation target: their energies do not change when a chart turns, so the angle each chart ends at is
-    whatever the solver drifted to (the unwraps start each island at an arbitrary angle). The only
-    orientation information they have is the input's, on which the texture's lines were painted along the
-    texel grid; keeping it (``alpha = 0``) is Eq. 16's rotation term with the identity as every target, and
-    ``w_R = 1`` weighs every triangle by its area only, as no method among them measures which triangles care.
-    With the packer's quarter turns (DESIGN decision 7), a chart at any multiple of 90 degrees to the input is
-    on the grid, which is the symmetry ``orient_charts`` minimizes over.
-    """
-    uv_in = np.asarray(uv_in, dtype=np.float64)
-    face_chart = np.asarray(face_chart)
-    uv, restored = restore_folded_charts(uv_in, uv_new, face_chart)
-    m = len(uv_in)
-    alpha = np.zeros(m) if alpha is None else alpha
-    w_R = np.ones(m) if w_R is None else w_R
-    uv, angles = orient_charts(uv_in, uv, face_chart, alpha, w_R, texel_scale=texel_scale)
-    return uv, restored, angles
 
 
 def _finished(objects, name, uv_in, F, uv_new, texture, start):

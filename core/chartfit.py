@@ -23,7 +23,7 @@ from .meshwise import MeshwiseResult, flipped_triangles, iter_solve_meshwise, or
 from .overlap import FOLD_TOLERANCE, restore_folded_charts, shared_area_fractions
 from .progress import run_generator
 
-__all__ = ["ChartFit", "iter_fit_charts", "fit_charts"]
+__all__ = ["ChartFit", "finish_charts", "iter_fit_charts", "fit_charts"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,6 +60,62 @@ class ChartFit:
     fits: tuple
 
 
+def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scale=(1.0, 1.0),
+                  fold_tolerance=FOLD_TOLERANCE):
+    """The post-processing of every method's charts before packing: the fold restore, then the chart turn.
+
+    Folded charts get their input layout back at their new size (:func:`.overlap.restore_folded_charts`);
+    then every chart is turned rigidly to the angle that best meets its rotation targets
+    (:func:`.meshwise.orient_charts`, which changes no stretch and no fold). These are the two steps
+    :func:`fit_charts` applies to each of its fits.
+
+    Parameters
+    ----------
+    uv_in : (m, 3, 2) array_like of float
+        Input UVs per face corner.
+    uv_new : (m, 3, 2) array_like of float
+        The method's UVs of the same charts, before packing.
+    face_chart : (m,) array_like of int
+        Chart of every face in the input (``uv_topology(F, uv_in).face_chart``).
+    alpha, w_R : (m,) array_like of float, optional
+        The method's own rotation targets (angles to the input's texel grid) and their weights. Without them,
+        ``alpha = 0`` and ``w_R = 1``: every chart is turned back to the input's texel grid, weighing its
+        triangles by their input area.
+    texel_scale : (2,) array_like of float, optional
+        Texels per UV unit of the input texture along u and v.
+    fold_tolerance : float, optional
+        Of :func:`.overlap.restore_folded_charts`.
+
+    Returns
+    -------
+    uv : (m, 3, 2) float64 ndarray
+    restored : (k,) int64 ndarray
+        Charts given their input layout.
+    angles : (n_charts,) float64 ndarray
+        The turn of every chart.
+
+    Notes
+    -----
+    Each method is turned towards its own targets. Ours has them: the triangle-wise optimum's rotation
+    ``alpha`` with Eq. 17's ``w_R``. SSP, SSPOP (``w_R = 0``, paper Sec. 5.2.2) and Blender's unwraps carry
+    no rotation target: their energies do not change when a chart turns, so the angle each chart ends at is
+    whatever the solver drifted to (the unwraps start each island at an arbitrary angle). The only
+    orientation information they have is the input's, on which the texture's lines were painted along the
+    texel grid; keeping it (``alpha = 0``) is Eq. 16's rotation term with the identity as every target, and
+    ``w_R = 1`` weighs every triangle by its area only, as no method among them measures which triangles care.
+    With the packer's quarter turns (DESIGN decision 7), a chart at any multiple of 90 degrees to the input is
+    on the grid, which is the symmetry ``orient_charts`` minimizes over.
+    """
+    uv_in = np.asarray(uv_in, dtype=np.float64)
+    face_chart = np.asarray(face_chart)
+    uv, restored = restore_folded_charts(uv_in, uv_new, face_chart, tolerance=fold_tolerance)
+    m = len(uv_in)
+    alpha = np.zeros(m) if alpha is None else alpha
+    w_R = np.ones(m) if w_R is None else w_R
+    uv, angles = orient_charts(uv_in, uv, face_chart, alpha, w_R, texel_scale=texel_scale)
+    return uv, restored, angles
+
+
 def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100,
                     fold_tolerance=FOLD_TOLERANCE):
     """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`."""
@@ -83,8 +139,8 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                 fit = finished.value
                 break
             yield index * steps + done, 2 * steps
-        fitted, restored = restore_folded_charts(uv, fit.uv, chart, tolerance=fold_tolerance)
-        fitted, angles = orient_charts(uv, fitted, chart, targets[:, 0], w_R, texel_scale=texel_scale)
+        fitted, restored, angles = finish_charts(uv, fit.uv, chart, alpha=targets[:, 0], w_R=w_R,
+                                                 texel_scale=texel_scale, fold_tolerance=fold_tolerance)
         measured = measure(fitted)
         if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs
             while True:

@@ -7,6 +7,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from perceptual_uv.bridge import baselines  # noqa: E402
+from perceptual_uv.core.chartfit import finish_charts  # noqa: E402
 from perceptual_uv.bridge.mesh_io import import_model, read_mesh  # noqa: E402
 from perceptual_uv.core.cost import uv_area  # noqa: E402
 from perceptual_uv.core.evaluation import symmetric_dirichlet  # noqa: E402
@@ -94,7 +95,7 @@ def test_triangle_targets_are_cached_per_mesh_texture_and_settings(spot, tmp_pat
     assert runs == [0, 3]
 
 
-# --- the post-processing every method gets (fold restore and chart turn, ``baselines.finish_charts``) ---
+# --- the post-processing every method gets (fold restore and chart turn, ``core.chartfit.finish_charts``) ---
 
 def _charts(objects, source):
     from perceptual_uv.bridge.evaluate import mesh_arrays
@@ -219,7 +220,7 @@ def test_finish_charts_is_the_post_processing_of_ours(spot):
     # equal losses: every chart keeps the fit without rotation terms
     fit = fit_charts(F, uv, targets, w_R, w_S, measure=lambda new: np.zeros(m), max_iterations=3)
     assert not fit.rotation_fit.any()
-    finished, restored, angles = baselines.finish_charts(uv, fit.fits[0].uv, chart, alpha=targets[:, 0], w_R=w_R)
+    finished, restored, angles = finish_charts(uv, fit.fits[0].uv, chart, alpha=targets[:, 0], w_R=w_R)
     np.testing.assert_allclose(finished, fit.uv, atol=1e-12)
     np.testing.assert_array_equal(restored, fit.restored)
     assert np.count_nonzero(angles) > 0  # the targets do turn charts: the comparison is not vacuous
@@ -232,7 +233,7 @@ def test_without_targets_finish_charts_keeps_the_input_grid():
     chart = np.array([0, 0, 1, 1])
     uv_new = _turned(_turned(uv_in * 1.7, np.array([True, True, False, False]), 0.4),
                      np.array([False, False, True, True]), np.pi / 2 + 0.2)
-    out, restored, angles = baselines.finish_charts(uv_in, uv_new, chart)
+    out, restored, angles = finish_charts(uv_in, uv_new, chart)
     assert restored.size == 0
     for faces in (slice(0, 2), slice(2, 4)):
         e_in = uv_in[faces, 1:] - uv_in[faces, :1]
