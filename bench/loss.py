@@ -3,12 +3,20 @@
 Usage::
 
     .venv/bin/python bench/loss.py [--model ../shared/models/spot] [--faces 200] [--evals 100] [--seed 0]
+    .venv/bin/python bench/loss.py --solvers --model ../shared/models/Avocado --faces 24 --evals 10
 
 Prints ms per triangle preparation, ms per evaluation (fused numba kernel) at identity, at random
 deformations from the box of Eq. 14 and at shrinks lambda <= 0.5 (where the optimizer spends its samples on
 textured triangles), in batches and in calls of one row, and the plain numpy/scipy reference on a few
 triangles with the ratio of the two. Timings on a shared machine are noisy: compare the ratios printed by
 one run.
+
+``--solvers`` compares the re-bake's solvers instead (:data:`core.loss_stack.DISSECTION_COST`): views sized
+as the triangle-wise stage sizes them (one pixel per texel, 64-256 px), every evaluation run once with the
+band/envelope Cholesky only and once with the default choice (nested dissection for wide footprints), at the
+identity, near it (lambda >= 0.7) and at shrinks lambda <= 0.5; prints ms per evaluation of each, their
+ratio and the largest difference of E. Models other than OBJ are read through Blender's importers
+(``bench/trianglewise.py``).
 """
 import argparse
 import pathlib
@@ -33,6 +41,69 @@ def load_model(directory):
     return V, F, uv, np.ascontiguousarray(texture[::-1])
 
 
+def load_any_model(directory):
+    """``(V, F, uv, texture)``: OBJ and PNG as :func:`load_model`, other formats through Blender's importers."""
+    directory = pathlib.Path(directory)
+    if any(directory.glob("*.obj")):
+        return load_model(directory)
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+    from trianglewise import load_model as load_with_blender
+
+    return load_with_blender(directory)[:4]
+
+
+def compare_solvers(args):
+    """Time the fused kernel with the band/envelope solve only against the default solver choice."""
+    from perceptual_uv.core import loss, loss_stack
+    from perceptual_uv.core.camera import texel_matched_pixels
+    from perceptual_uv.core.gmsd import GMSD_C
+    from perceptual_uv.core.trianglewise import MAX_SCREEN_PIXELS
+
+    V, F, uv, texture = load_any_model(args.model)
+    luma = loss.texture_luma(texture)
+    rng = np.random.default_rng(args.seed)
+    faces = np.sort(rng.choice(len(F), size=min(args.faces, len(F)), replace=False))
+    sizes = texel_matched_pixels(V, F, uv, luma.shape, faces, minimum=64, maximum=MAX_SCREEN_PIXELS)
+    problems = []
+    for size in np.unique(sizes):
+        batch = loss.prepare_triangles(V, F, uv, luma, faces[sizes == size], screen_pixels=int(size))
+        problems += [problem for problem in batch if not problem.is_constant]
+    print(f"model {args.model}: {len(F)} faces, texture {texture.shape}, {len(problems)} textured of "
+          f"{len(faces)} sampled, views {sizes.min()}-{sizes.max()} px (median {np.median(sizes):.0f})")
+    near = np.column_stack([rng.uniform(0, np.pi / 2, args.evals), rng.uniform(0.7, 1.0, (args.evals, 2)),
+                            rng.uniform(0, np.pi / 2, args.evals)])
+    small = np.column_stack([rng.uniform(0, np.pi / 2, args.evals), rng.uniform(0.05, 0.5, (args.evals, 2)),
+                             rng.uniform(0, np.pi / 2, args.evals)])
+    solvers = (("band/envelope", np.inf), ("default", float(loss_stack.DISSECTION_COST)))
+
+    def kernel_args(problem, params):
+        h, w = problem.texture_shape
+        return (params, problem.points, problem.pooled_index, problem.box, problem.reference[None],
+                problem.reference_gradient[None], problem.centre, w, h, problem.ridge, GMSD_C, True)
+
+    for _, cost in solvers:  # compile or load the cache
+        loss_stack._evaluate_planes_kernel(*kernel_args(problems[0], small[:1]), cost)
+    for name, params in (("identity", np.array([[0.0, 1.0, 1.0, 0.0]])), ("lambda >= 0.7", near),
+                         ("lambda <= 0.5", small)):
+        seconds = dict.fromkeys(dict(solvers), 0.0)
+        worst_abs = worst_rel = 0.0
+        for problem in problems:
+            e = {}
+            for label, cost in solvers:
+                t0 = time.perf_counter()
+                e[label] = loss_stack._evaluate_planes_kernel(*kernel_args(problem, params), cost)
+                seconds[label] += time.perf_counter() - t0
+            difference = np.abs(e["default"] - e["band/envelope"])
+            worst_abs = max(worst_abs, float(difference.max()))
+            seen = e["band/envelope"] > 1e-6  # E near 0 (the identity): only the absolute difference means much
+            if seen.any():
+                worst_rel = max(worst_rel, float(np.max(difference[seen] / e["band/envelope"][seen])))
+        per = {label: seconds[label] / (len(problems) * len(params)) * 1e3 for label in seconds}
+        print(f"{name}: band/envelope {per['band/envelope']:.2f} ms per evaluation, default "
+              f"{per['default']:.2f} ms, ratio {per['band/envelope'] / per['default']:.2f}x; E differs by at "
+              f"most {worst_abs:.1e}, relative {worst_rel:.1e} where E > 1e-6")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     here = pathlib.Path(__file__).resolve().parents[1]
@@ -41,7 +112,11 @@ def main(argv=None):
     parser.add_argument("--evals", type=int, default=100)
     parser.add_argument("--reference-faces", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--solvers", action="store_true",
+                        help="compare the re-bake's solvers at the triangle-wise stage's view sizes instead")
     args = parser.parse_args(argv)
+    if args.solvers:
+        return compare_solvers(args)
 
     from perceptual_uv.core import loss
     from perceptual_uv.core.one_ring import one_ring_faces

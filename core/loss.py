@@ -31,8 +31,9 @@ envelope Cholesky over the touched texels, a render pass and GMSD, all in one nu
 (64 px): ~0.1 ms per evaluation at shrinks lambda <= 0.5, ~0.15 ms over the whole box, ~0.3 ms at the
 identity (median 300-500 touched texels); 30x faster than the numpy/scipy reference path. The solve costs
 about ``T * W^2`` for ``T`` touched texels in a footprint ``W`` texels wide, so triangles whose texels are
-about the size of a screen pixel (several thousand texels in view) cost 5-15 ms near the identity; a nested
-dissection ordering would cut that. Preparation: 0.4-0.9 ms per triangle. The per-triangle cache holds
+about the size of a screen pixel (several thousand texels in view) cost 5-15 ms near the identity; wide
+footprints are factorized in nested-dissection order instead (:data:`.loss_stack.DISSECTION_COST`,
+:mod:`.multifrontal`; about ``T^{3/2}``). Preparation: 0.4-0.9 ms per triangle. The per-triangle cache holds
 arrays only (picklable; the numba kernels are module functions), ~165 KB per triangle at 64 px. Those figures
 predate the window faces (step 2): a sliver's view now holds the panel around it instead of a thin line, so it
 costs like a well-shaped triangle's of the same window; the whole triangle-wise stage on wooden_bookshelf

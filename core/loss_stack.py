@@ -8,6 +8,16 @@ renders and takes GMSD (Eq. 3, 5) per plane (:func:`_evaluate_planes_kernel`). T
 (:func:`.loss._evaluate_kernel`) is the case P = 1; :class:`.loss_planes.StackProblem` groups its active
 planes by shape and calls this for every group of two or more.
 
+The re-bake's solve dominates an evaluation whose view reads many texels: a band or envelope Cholesky
+(:mod:`.bake_lsq`) costs about ``T W^2`` for ``T`` texels in a footprint ``W`` texels wide, which near the
+identity of a triangle whose view has about one pixel per texel (``T`` up to tens of thousands, ``W`` in
+the hundreds) is hundreds of milliseconds. When that work estimate exceeds :data:`DISSECTION_COST`, the same
+normal equations are factorized in nested-dissection order by a multifrontal Cholesky instead
+(:mod:`.multifrontal`, about ``T^{3/2}``): about as fast at the threshold, 2-3x faster at 10x-100x its
+work and 10x beyond, the renders equal to about 1e-11. Both are direct solves, so the ill-conditioned
+systems near the identity (about one pixel per texel, held only by the ridge) are solved as exactly as the
+well-conditioned ones of shrunk triangles.
+
 References
 ----------
 Sun et al. 2022, Eq. 3, 5, 8-11.
@@ -19,8 +29,14 @@ from .bake_lsq import (_apply_renumber, _band_cholesky_solve, _band_substitute, 
                        _envelope_first, _envelope_substitute, _first_occurrence_ids, _group_by_component,
                        _render_ids, _solve_normal_equations)
 from .gmsd import _covered_gmsd_kernel
+from .multifrontal import _multifrontal_solve
 
 __all__ = []
+
+#: Envelope work estimate (:func:`_envelope_cost`) above which the re-bake is solved in nested-dissection order
+#: (:func:`.multifrontal._multifrontal_solve`) instead of by the band or envelope Cholesky: about where the two
+#: take the same time (a few thousand texels in a footprint 30-40 texels wide).
+DISSECTION_COST = 1_000_000
 
 
 @njit(inline="always")
@@ -108,7 +124,8 @@ def _add_off_diagonal(env, offset, first, i, j, value):
 
 
 @njit
-def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w, h, ridge, rendered):
+def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w, h, ridge, rendered,
+                         dissection_cost=DISSECTION_COST):
     """Numba: deform, re-bake (Eq. 11) and re-render ``P`` planes in one sweep; False if the caller must fall
     back.
 
@@ -124,6 +141,11 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
     them, whichever gives the smaller envelope (the first suits compact footprints, the second minified ones
     where pixels read disjoint texel groups). Falls back when the footprint's box could alias under REPEAT
     wrapping or is much larger than the pixel count.
+
+    The solve is a band or envelope Cholesky in that numbering, or, when its work estimate exceeds
+    ``dissection_cost`` (default :data:`DISSECTION_COST`), a multifrontal Cholesky in nested-dissection order
+    over the texels' positions in the box (:func:`.multifrontal._multifrontal_solve`). Tests force either
+    with ``0`` or ``inf``.
     """
     count = points.shape[0]
     n_planes = references.shape[0]
@@ -327,13 +349,21 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
         cell_tex = cell_tex_b
         first = first_b
         cost = cost_b
-    # Normal equations from the cells, then a Cholesky solve: in band storage when the envelope is nearly a
-    # full band (compact footprints; the band kernel vectorizes better), else in envelope storage.
+    # Normal equations from the cells, then a Cholesky solve: in nested-dissection order when the envelope
+    # work is large (wide footprints), else in band storage when the envelope is nearly a full band (compact
+    # footprints; the band kernel vectorizes better), else in envelope storage.
     bandwidth = 0
     for i in range(n_tex):
         bandwidth = max(bandwidth, i - first[i])
     rhs = np.zeros((n_planes, n_tex))
-    if n_tex * bandwidth * bandwidth <= 1.5 * cost:
+    if cost > dissection_cost:
+        cell_x = np.empty(n_cells, np.int64)
+        cell_y = np.empty(n_cells, np.int64)
+        for c in range(n_cells):
+            cell_x[c] = cell_pos[c] % width
+            cell_y[c] = cell_pos[c] // width
+        _multifrontal_solve(cell_tex, acc, cell_x, cell_y, n_tex, ridge, rhs)
+    elif n_tex * bandwidth * bandwidth <= 1.5 * cost:
         band = np.zeros((n_tex, bandwidth + 1))
         for c in range(n_cells):
             t0, t1, t2, t3 = cell_tex[c, 0], cell_tex[c, 1], cell_tex[c, 2], cell_tex[c, 3]
@@ -393,9 +423,10 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
 
 @njit
 def _evaluate_planes_kernel(params, points, pooled_index, box, references, reference_gradients, centre, w, h,
-                            ridge, c_gmsd, use_cells):
+                            ridge, c_gmsd, use_cells, dissection_cost=DISSECTION_COST):
     """Numba: E of ``P`` planes on one texel grid, (k, 4) params -> (k, P) (``references`` (P, count),
-    ``reference_gradients`` (P, m, m)); :func:`.loss._evaluate_kernel` is the case P = 1."""
+    ``reference_gradients`` (P, m, m)); :func:`.loss._evaluate_kernel` is the case P = 1.
+    ``dissection_cost`` chooses the re-bake's solver (:func:`_rebake_render_cells`)."""
     k = params.shape[0]
     n_planes = references.shape[0]
     out = np.empty((k, n_planes))
@@ -422,7 +453,8 @@ def _evaluate_planes_kernel(params, points, pooled_index, box, references, refer
         a10 = sa * s00 + ca * s01
         a11 = sa * s01 + ca * s11
         done = count > 0 and use_cells and _rebake_render_cells(
-            points, references, box, a00, a01, a10, a11, centre[0], centre[1], w, h, ridge, rendered)
+            points, references, box, a00, a01, a10, a11, centre[0], centre[1], w, h, ridge, rendered,
+            dissection_cost)
         if not done:
             ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1], w, h)
             for q in range(n_planes):

@@ -15,30 +15,15 @@ import time
 
 import numpy as np
 
-from ._jit import cache_dir
+from ._jit import cache_dir, core_source_hash
 
 __all__ = ["ResultCache", "result_key", "default_cache_folder"]
-
-_CODE_HASH = None
-
 
 def default_cache_folder():
     """The per-user folder of stage results: ``$PERCEPTUAL_UV_RESULTS_CACHE`` if set, else ``results`` next to
     numba's cache (:func:`perceptual_uv.core._jit.cache_dir`)."""
     override = os.environ.get("PERCEPTUAL_UV_RESULTS_CACHE")
     return pathlib.Path(override) if override else pathlib.Path(cache_dir()).parent / "results"
-
-
-def _code_hash():
-    """SHA-256 of the source of every module of ``core``: a change to any of them invalidates the cache."""
-    global _CODE_HASH
-    if _CODE_HASH is None:
-        digest = hashlib.sha256()
-        for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
-            digest.update(path.name.encode())
-            digest.update(path.read_bytes())
-        _CODE_HASH = digest.hexdigest()
-    return _CODE_HASH
 
 
 def result_key(*arrays, **settings):
@@ -56,7 +41,7 @@ def result_key(*arrays, **settings):
     str
         64 hexadecimal digits.
     """
-    digest = hashlib.sha256(_code_hash().encode())
+    digest = hashlib.sha256(core_source_hash().encode())
     for array in arrays:
         array = np.ascontiguousarray(array)
         digest.update(f"{array.dtype.str}{array.shape}".encode())

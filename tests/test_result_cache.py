@@ -33,7 +33,7 @@ def test_key_changes_with_every_input_setting_and_the_code(monkeypatch):
     assert result_key(V.reshape(3, 4), np.arange(3), epsilon=0.01, seed=0) != base
     assert result_key(V, np.arange(3), epsilon=0.02, seed=0) != base
     assert result_key(V, np.arange(3), epsilon=0.01, seed=1) != base
-    monkeypatch.setattr(result_cache, "_CODE_HASH", "another version of core")
+    monkeypatch.setattr(result_cache, "core_source_hash", lambda: "another version of core")
     assert result_key(V, np.arange(3), epsilon=0.01, seed=0) != base
 
 
