@@ -36,7 +36,7 @@ def _import_package_from_file():
 if __name__ == "__main__" and not __package__:  # blender -b FILE --python cli.py -- ARGS
     sys.exit(_import_package_from_file().main(blender_argv(sys.argv)))
 
-from .core.settings import COST_ROLES, OptimizeSettings  # noqa: E402  (after the script bootstrap above)
+from .core.settings import COST_MEASURES, COST_ROLES, OptimizeSettings  # noqa: E402  (after the script bootstrap above)
 
 MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj")
 OUTPUT_SUFFIXES = (".blend", ".glb")
@@ -105,8 +105,15 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
                         help=f"perceptual loss bound (default {DEFAULTS.epsilon})")
     size = parser.add_mutually_exclusive_group()
     size.add_argument("--cost", type=float, default=DEFAULTS.target_cost,
-                      help=f"target relative cost (default {DEFAULTS.target_cost})")
+                      help="the new images' memory relative to the input's, e.g. 0.25 for a quarter: each map's "
+                           f"side is round(sqrt(COST * width * height)) of its input (default {DEFAULTS.target_cost}; "
+                           "with --cost-measure texels the paper's relative texel cost, Eq. 21)")
     size.add_argument("--resolution", type=int, default=None, help="explicit texture size in pixels")
+    parser.add_argument("--cost-measure", dest="cost_measure", choices=COST_MEASURES, default=DEFAULTS.cost_measure,
+                        help=f"what --cost and --cost-for measure (default {DEFAULTS.cost_measure}): memory, the "
+                             "images' pixels relative to the input's; texels, the texels the new UV map covers "
+                             "relative to the input's (Eq. 20-21, the paper's cost and evaluate's; the image is as "
+                             "large as the packing at that texel density needs)")
     parser.add_argument("--iterations", type=int, default=DEFAULTS.iterations, help="loss evaluations per triangle")
     parser.add_argument("--screen-pixels", type=int, default=DEFAULTS.screen_pixels,
                         help=f"per-triangle view size (default {DEFAULTS.screen_pixels}; grows to one pixel per "
@@ -194,7 +201,7 @@ def _validate(args):
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
                 screen_pixels=args.screen_pixels, max_screen_pixels=args.max_screen_pixels, margin=args.margin,
                 workers=args.workers, seed=args.seed, reuse_triangle_results=not args.fresh,
-                role_costs=tuple(args.cost_for),
+                role_costs=tuple(args.cost_for), cost_measure=args.cost_measure,
                 scheduler=args.scheduler if args.command == "optimize" else None)
         except ValueError as error:
             raise UsageError(str(error)) from None

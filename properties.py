@@ -7,6 +7,17 @@ from .core.settings import OptimizeSettings
 
 DEFAULTS = OptimizeSettings()
 
+# The per-map cost fields of the sidebar: (property, role of ``core.settings.COST_ROLES``, label). 0 means "the
+# Relative Cost"; "normal" stands for tangent-, object- and world-space normal maps.
+ROLE_COST_FIELDS = (
+    ("cost_normal", "normal", "Normal"),
+    ("cost_metallic_roughness", "metallic_roughness", "Metallic/Roughness"),
+    ("cost_emissive", "emissive", "Emissive"),
+    ("cost_occlusion", "occlusion", "Occlusion"),
+    ("cost_alpha", "alpha", "Alpha"),
+    ("cost_data", "data", "Other Data"),
+)
+
 
 def settings_annotations():
     """Fresh property definitions; the operator and the PropertyGroup each get their own copy."""
@@ -16,12 +27,22 @@ def settings_annotations():
             default=DEFAULTS.epsilon, min=1e-4, max=0.5, precision=4, step=0.1),
         "resolution_mode": EnumProperty(
             name="Resolution", description="How the new texture's resolution is chosen",
-            items=(("COST", "Relative Cost", "Resolution from a target relative cost (paper Eq. 20-21)"),
+            items=(("COST", "Relative Cost", "Resolution from a target cost relative to the input"),
                    ("EXPLICIT", "Explicit", "A fixed texture resolution")),
             default="COST"),
         "target_cost": FloatProperty(
-            name="Relative Cost", description="Texel count of the result relative to the input (paper Eq. 21)",
+            name="Relative Cost",
+            description=("The new images' memory relative to the input's (0.25: a quarter of the pixels, half the "
+                         "side); with Cost Measure Texels, the paper's relative texel count (Eq. 21)"),
             default=DEFAULTS.target_cost, min=0.01, max=4.0, precision=3),
+        "cost_measure": EnumProperty(
+            name="Cost Measure", description="What Relative Cost and the per-map costs measure",
+            items=(("memory", "Image Memory",
+                    "Each new image has the cost times its input image's pixels; the islands fill the image"),
+                   ("texels", "Texels (Paper)",
+                    "Texels the new UV map covers relative to the input's (paper Eq. 20-21, the evaluation's "
+                    "cost); the image is as large as the packing at that texel density needs")),
+            default=DEFAULTS.cost_measure),
         "resolution": IntProperty(
             name="Texture Size", description="Width and height of the new image in pixels",
             default=1024, min=8, max=16384),
@@ -54,14 +75,23 @@ def settings_annotations():
             name="Use in Material Copy",
             description="Assign a copy of the material that samples the new image through the new UV map",
             default=DEFAULTS.use_material_copy),
+        **{name: FloatProperty(
+            name=label, description=(f"Relative cost of the material's {label.lower()} maps, measured as Cost "
+                                     "Measure says (0: the Relative Cost)"),
+            default=0.0, min=0.0, max=4.0, precision=3) for name, _, label in ROLE_COST_FIELDS},
     }
 
 
 def settings_from(props):
-    """The OptimizeSettings that a PropertyGroup or operator's properties describe (ValueError if invalid)."""
+    """The OptimizeSettings that a PropertyGroup or operator's properties describe (ValueError if invalid).
+
+    The per-map cost fields (:data:`ROLE_COST_FIELDS`) that are not 0 become ``role_costs``.
+    """
     values = {name: getattr(props, name) for name in OptimizeSettings.__dataclass_fields__ if hasattr(props, name)}
     if props.resolution_mode == "COST":
         values["resolution"] = None
+    values["role_costs"] = tuple((role, getattr(props, name)) for name, role, _ in ROLE_COST_FIELDS
+                                 if getattr(props, name) > 0)
     return OptimizeSettings(**values)
 
 

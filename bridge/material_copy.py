@@ -4,8 +4,9 @@ each new image's size, the material copies that read the new images, and the rep
 
 Every map of the material moves (DESIGN decision 6): each image the materials read through the source UV map
 (:mod:`.material`) is re-baked onto the new UV map (:func:`.bake.bake_maps`) at the same relative cost as the
-base colour, each relative to its own input size, and the material copies read every new image through the new
-UV map. A copy carries :data:`COPY_PROPERTY`, so a run on the result of an earlier one reads what it shows.
+base colour (or its role's), each relative to its own input size, and the material copies read every new image
+through the new UV map. A copy carries :data:`COPY_PROPERTY`, so a run on the result of an earlier one reads what
+it shows.
 """
 import os
 
@@ -14,10 +15,12 @@ import numpy as np
 
 from .material import material_maps, read_material, read_object_materials
 
-__all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "resolve_source_uv", "read_maps", "loss_planes_of", "image_side",
-           "image_stem", "map_resolution", "material_copies", "map_report"]
+__all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "resolve_source_uv", "read_maps", "loss_planes_of",
+           "iter_loss_planes_of", "image_side", "image_stem", "map_resolution", "memory_resolution",
+           "material_copies", "map_report"]
 
 MIN_RESOLUTION = 8  # the smallest side of a new image
+MAX_RESOLUTION = 16384  # the largest
 
 COPY_PROPERTY = "perceptual_uv_source"
 
@@ -105,13 +108,31 @@ def read_maps(objects, source_uv, loss_image):
 def loss_planes_of(records, texture):
     """The planes the triangle-wise loss sees (``core.loss_planes``), one map after the other: the loss image
     (``texture``, already read) first, so its texel grid is the parameters' frame; colour maps as luma (and
-    alpha), tangent-space normals as their shading, data maps per channel their material reads."""
-    from ..core.loss_planes import PlaneStack, loss_planes
+    alpha), tangent-space normals as their shading, data maps per channel their material reads.
+
+    :func:`iter_loss_planes_of` is the same as a generator that hands control back while it runs."""
+    from ..core.progress import run_generator
+
+    return run_generator(iter_loss_planes_of(records, texture))
+
+
+def iter_loss_planes_of(records, texture):
+    """Generator form of :func:`loss_planes_of`: yields ``(done, total)`` maps and returns the planes.
+
+    It yields ``(0, len(records))`` after reading each further map's pixels out of Blender (one bpy call per
+    map, which cannot be split), then the steps of :func:`.core.loss_planes.iter_loss_planes`, a band of rows of
+    a map at a time.
+    """
+    from ..core.loss_planes import PlaneStack, iter_loss_planes
     from .mesh_io import read_image
 
     maps = []
     for index, record in enumerate(records):
-        pixels = np.clip(texture if index == 0 else read_image(record.image), 0.0, 1.0)  # float maps may exceed 1
+        if index:
+            pixels = read_image(record.image)
+            yield 0, len(records)
+        else:
+            pixels = texture
         if record.kind == "color":
             maps.append({"role": "color", "pixels": pixels, "name": record.role})
         elif record.kind == "tangent_normal":
@@ -122,7 +143,7 @@ def loss_planes_of(records, texture):
     # The first plane stays whatever it holds: its texel grid is the parameters' frame (and the mesh-wise
     # stage's). Later planes with one value over the whole image (an opaque base colour's alpha, a flat map) are
     # left out: they cannot raise E, and with the loss image alone the single-plane path runs.
-    stack = loss_planes(maps, drop_constant=False)
+    stack = yield from iter_loss_planes(maps, drop_constant=False, clip=True)  # float maps may exceed 1
     keep = [0] + [index for index in range(1, len(stack)) if stack[index].min() < stack[index].max()]
     return PlaneStack([stack[index] for index in keep], [stack.names[index] for index in keep])
 
@@ -153,7 +174,30 @@ def map_resolution(resolution, input_side, reference_side, *, role_cost=None, re
     scale = input_side / reference_side
     if role_cost is not None and reference_cost:
         scale *= np.sqrt(role_cost / reference_cost)
-    return int(min(16384, max(MIN_RESOLUTION, round(resolution * scale))))
+    return int(min(MAX_RESOLUTION, max(MIN_RESOLUTION, round(resolution * scale))))
+
+
+def memory_resolution(input_size, cost):
+    """Side of a map's new image when the cost is image memory (``OptimizeSettings.cost_measure`` "memory").
+
+    Parameters
+    ----------
+    input_size : (int, int)
+        The map's input image's width and height.
+    cost : float
+        The memory share the map gets: its role's cost, or the run's.
+
+    Returns
+    -------
+    int
+        ``round(sqrt(cost * width * height))`` in [8, 16384]: the new square image has ``cost`` times the input's
+        pixels. Unlike the texel cost (Eq. 20-21, ``core.cost``) this does not depend on the UV maps: the charts
+        are packed to fill the image.
+    """
+    width, height = input_size
+    if not cost > 0:
+        raise ValueError(f"memory cost must be positive, got {cost}")
+    return int(min(MAX_RESOLUTION, max(MIN_RESOLUTION, round(np.sqrt(cost * float(width) * float(height))))))
 
 
 def image_stem(image):

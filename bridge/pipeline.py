@@ -20,8 +20,9 @@ import numpy as np
 from ..core import cost as texel_cost
 from ..core.progress import RunProgress, format_seconds
 from .material import base_color_image_node
-from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, image_side, image_stem, loss_planes_of, map_report,
-                            map_resolution, material_copies, read_maps, resolve_source_uv)
+from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, image_side, image_stem, iter_loss_planes_of,
+                            map_report, map_resolution, material_copies, memory_resolution, read_maps,
+                            resolve_source_uv)
 
 __all__ = ["Progress", "STAGE_SHARES", "triangle_results", "PipelineResult", "optimize_objects", "run_to_end",
            "target_problem", "loss_ramp", "map_resolution", "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE", "COPY_PROPERTY"]
@@ -203,14 +204,54 @@ class _Created:
                 os.unlink(path)
 
 
-def _read_objects(objects, source_uv, settings):
-    """Read, then validate: the image block, the validated input (mesh, texture for the loss, what to skip), notes."""
+# The parts of the "read" stage, each one step of the pipeline generator.
+_READ_STEPS = 6
+# The stages' modules (relative to this package): their first import in a session loads scipy and numba (about a
+# second).
+_STAGE_MODULES = ("..core.chartfit", "..core.loss", "..core.result_cache", "..core.ssp", "..core.trianglewise",
+                  ".bake")
+
+
+def _iter_import_stages(step):
+    """Import :data:`_STAGE_MODULES` in a thread, yielding ``step("read", 0, ...)`` every 0.1 s until it is done
+    (nothing when they are imported already). A module whose import fails is left to the pipeline's own import,
+    which raises the error. (Importing ``.bake`` runs no bpy call: its module code only defines.)"""
+    import importlib
+    import importlib.util
+    import sys
+    import threading
+
+    names = [importlib.util.resolve_name(name, __package__) for name in _STAGE_MODULES]
+    if all(name in sys.modules for name in names):
+        return
+
+    def load():
+        for name in names:
+            with contextlib.suppress(Exception):
+                importlib.import_module(name)
+
+    thread = threading.Thread(target=load, daemon=True, name="perceptual_uv-imports")
+    thread.start()
+    thread.join(0.1)
+    while thread.is_alive():
+        yield step("read", 0, _READ_STEPS, "Loading the optimizer")
+        thread.join(0.1)
+
+
+def _iter_read_objects(objects, source_uv, settings, step):
+    """Read, then validate, one part per step: yields ``step("read", ...)`` before each part and returns the
+    image block, the validated input (mesh, texture for the loss, what to skip) and notes.
+
+    Loading the image's file (on its first use) and copying its pixels out of Blender are single bpy calls:
+    each takes one step however large the image is.
+    """
     from ..core.mesh import concatenate_meshes
     from ..core.validate import check_memory_budget, validate_inputs
     from .mesh_io import image_triangle_mask, read_image, read_mesh
 
     per_object = [read_mesh(obj, uv_name=source_uv) for obj in objects]
     mesh = concatenate_meshes(per_object)
+    yield step("read", 1, _READ_STEPS, "Loading the texture")
     image = _source_image(objects)
     width, height = image.size
     what = ", ".join(f"'{obj.name}'" for obj in objects)
@@ -218,7 +259,10 @@ def _read_objects(objects, source_uv, settings):
     check_memory_budget(mesh.n_vertices, mesh.n_faces, (height, width, image.channels), workers=settings.workers,
                         screen_pixels=settings.max_screen_pixels, what=what)
     uses_image = np.concatenate([image_triangle_mask(obj, arrays, image) for obj, arrays in zip(objects, per_object)])
-    validated = validate_inputs(mesh, read_image(image), shows_texture=uses_image, workers=settings.workers,
+    yield step("read", 2, _READ_STEPS, "Reading the texture's pixels")
+    pixels = read_image(image)
+    yield step("read", 3, _READ_STEPS, "Checking the mesh and texture")
+    validated = validate_inputs(mesh, pixels, shows_texture=uses_image, workers=settings.workers,
                                 screen_pixels=settings.max_screen_pixels, uv_name=source_uv, image_name=image.name)
     return image, validated, _notes_for_objects(objects) + list(validated.notes)
 
@@ -323,7 +367,10 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         Through ``StopIteration.value``; :func:`run_to_end` returns it directly. ``image`` is the base colour's
         new image, ``images`` every new image (one per map the materials read through ``source_uv``: base
         colour, normal, packed data, emissive, ...), ``report["maps"]`` per map its role, input and new size, raw
-        and file bytes before and after, ``report["memory_ratio"]`` the maps' raw bytes after over before.
+        and file bytes before and after, ``report["memory_ratio"]`` the maps' raw bytes after over before (the
+        cost a user sets with ``settings.cost_measure`` "memory", within rounding), ``report["relative_cost"]``
+        the base colour's relative texel cost (Eq. 21; the cost set with "texels"), ``report["cost_measure"]``
+        which of the two ``target_cost`` set (None with an explicit resolution).
 
     Raises
     ------
@@ -334,15 +381,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     References
     ----------
     Sun et al. 2022: Sec. 4.1 (triangle-wise), Sec. 4.2 and App. B (mesh-wise), Sec. 5.1 (packing with
-    translations and 90-degree rotations, resolution from the target cost, Eq. 20-21).
+    translations and 90-degree rotations, resolution from the target cost, Eq. 20-21, or from image memory).
     """
-    from ..core.chartfit import iter_fit_charts
-    from ..core.loss import above_bound
-    from ..core.result_cache import result_key
-    from ..core.ssp import ssp_targets
-    from ..core.trianglewise import iter_losses_at, iter_losses_of, iter_optimize_triangles
     from ..core.settings import role_cost
-    from .bake import bake_maps
     from .mesh_io import write_uv_layer
 
     objects = list(objects)
@@ -371,17 +412,30 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         return Progress(stage, done, total, message, fraction, seconds_left)
 
     try:
-        yield step("read", 0, 1, "Reading mesh and texture")
-        image, validated, notes = _read_objects(objects, source_uv, settings)
+        yield from _iter_import_stages(step)
+        from ..core.chartfit import iter_fit_charts
+        from ..core.loss import above_bound
+        from ..core.result_cache import result_key
+        from ..core.ssp import iter_ssp_targets
+        from ..core.trianglewise import iter_losses_at, iter_losses_of, iter_optimize_triangles
+        from .bake import bake_maps
+
+        started = time.perf_counter()  # the run's times leave out loading the modules
+        yield step("read", 0, _READ_STEPS, "Reading the mesh")
+        image, validated, notes = yield from _iter_read_objects(objects, source_uv, settings, step)
+        yield step("read", 4, _READ_STEPS, "Reading the material's maps")
         records, map_notes = read_maps(objects, source_uv, image)  # refused here, before the run
         notes += map_notes
         mesh, texture, faces = validated.mesh, validated.texture, validated.faces
         V, F, uv_in = mesh.V, mesh.F, mesh.uv
-        planes = loss_planes_of(records, texture)  # every map the loss sees, the loss image's first
+        # Every map the loss sees, the loss image's first.
+        planes = yield from _relay(iter_loss_planes_of(records, texture), "read", "Building the loss's planes",
+                                   time.perf_counter(), step)
         height, width = texture.shape[:2]
         m = len(F)
         per_object = [mesh.object_index == index for index in range(len(objects))]
 
+        yield step("read", 5, _READ_STEPS, "Looking for the triangle-wise results of an earlier run")
         clock = time.perf_counter()
         key = result_key(V, F, uv_in, *planes, faces, epsilon=settings.epsilon, evaluations=settings.iterations,
                          screen_pixels=settings.screen_pixels, max_screen_pixels=settings.max_screen_pixels,
@@ -407,8 +461,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                          "their input shape and size")
 
         clock = time.perf_counter()
-        yield step("mesh", 0, 1, "Measuring the texture's signal stretch")
-        signal, _, _ = ssp_targets(V, F, uv_in, texture)
+        stage = iter_ssp_targets(V, F, uv_in, texture)
+        signal, _, _ = yield from _relay(stage, "mesh", "Measuring the texture's signal stretch", clock, step)
+        yield step("mesh", 0, 1, "Setting the mesh-wise fit's targets")
         # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
         targets = triangles.fit_targets(uv_in, planes, signal_targets=signal)
         params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
@@ -435,7 +490,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         yield step("pack", 0, 1, "Packing islands")
         clock = time.perf_counter()
-        packing = _pack(mesh.uv, uv_fit, meshwise.topology.face_chart, (width, height), settings)
+        # With the cost in image memory every map's side follows from its own input size; the charts fill the
+        # first map's (the loss image's). With the texel cost (Eq. 20-21) the packing sets the side.
+        by_memory = settings.resolution is None and settings.cost_measure == "memory"
+        sides = [_memory_side(record, settings) for record in records] if by_memory else None
+        packing = _pack(mesh.uv, uv_fit, meshwise.topology.face_chart, (width, height), settings,
+                        resolution=sides[0] if by_memory else None)
         # What the UV map stores (float32), so the report's figures are those of the saved map.
         uv_out = packing.uv.astype(np.float32).astype(np.float64)
         resolution, coverage = packing.resolution, texel_cost.uv_area(uv_out)
@@ -445,7 +505,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             created.uv_layers.append((obj.data, uv_name))
         if coverage < LOW_COVERAGE:
             notes.append(f"the packed UV islands cover {coverage:.0%} of the {resolution} x {resolution} image: it "
-                         f"holds {1 / coverage:.0f} times the texels the cost counts. An island far longer than it "
+                         f"holds {1 / coverage:.0f} times the texels the islands use. An island far longer than it "
                          "is wide sets the packing scale; a seam across it lets the islands pack tighter")
         times["pack"] = time.perf_counter() - clock
 
@@ -453,11 +513,19 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         reference_cost = texel_cost.relative_cost(uv_out, resolution, reference_uv=uv_in,
                                                   reference_resolution=(width, height))
         baked, bakes = {}, []
+        if by_memory and reference_cost > 1:
+            notes.append(f"the new {resolution} x {resolution} image has {reference_cost:.2f} times the input's "
+                         "texels per surface area (relative texel cost, Eq. 21): the input's islands take "
+                         f"{texel_cost.uv_area(uv_in):.0%} of its image. A cost of about "
+                         f"{settings.target_cost / reference_cost:.2g} keeps the input's texel density")
         for number, record in enumerate(records):
             override = role_cost(settings.role_costs, record.role)
-            side = (resolution if number == 0 and override is None else
-                    map_resolution(resolution, image_side(record.image), image_side(image), role_cost=override,
-                                   reference_cost=reference_cost))
+            if by_memory:
+                side = sides[number]
+            else:
+                side = (resolution if number == 0 and override is None else
+                        map_resolution(resolution, image_side(record.image), image_side(image), role_cost=override,
+                                       reference_cost=reference_cost))
             margin = 0 if settings.margin == 0 else max(1, round(settings.margin * side / resolution))
             if number == 0:
                 name = settings.image_name or f"{image_stem(image)}_perceptual"
@@ -504,6 +572,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "vertices": int(len(V)),
             "epsilon": settings.epsilon,
             "target_cost": settings.target_cost if settings.resolution is None else None,
+            "cost_measure": settings.cost_measure if settings.resolution is None else None,
             "resolution": int(resolution),
             "input_resolution": [int(width), int(height)],
             "relative_cost": reference_cost,
@@ -563,16 +632,27 @@ def _relay(stage, name, label, started, step):
 
 
 
-def _pack(uv_in, uv_fit, face_chart, input_size, settings):
+def _memory_side(record, settings):
+    """The side of a map's new image when ``target_cost`` is image memory: its role's cost or the run's."""
+    from ..core.settings import role_cost
+
+    override = role_cost(settings.role_costs, record.role)
+    return memory_resolution(record.image.size, settings.target_cost if override is None else override)
+
+
+def _pack(uv_in, uv_fit, face_chart, input_size, settings, *, resolution=None):
     """Pack the fitted charts on the new image's pixel grid (``core.packing``); the image side follows.
 
-    With a target cost the charts keep the texel density that meets it (Eq. 20-21: ``d^2`` texels per unit of
-    fitted UV area), and the image is as large as their packing; with an explicit resolution they fill it.
+    With a target texel cost the charts keep the texel density that meets it (Eq. 20-21: ``d^2`` texels per unit
+    of fitted UV area), and the image is as large as their packing; with an explicit resolution
+    (``settings.resolution``, else ``resolution``: the side the image memory gives) they fill it.
     """
     from ..core.packing import pack_charts
 
     if settings.resolution is not None:
-        return pack_charts(uv_fit, face_chart, margin=settings.margin, resolution=settings.resolution)
+        resolution = settings.resolution
+    if resolution is not None:
+        return pack_charts(uv_fit, face_chart, margin=settings.margin, resolution=resolution)
     reference = texel_cost.texel_cost(uv_in, input_size)
     density = np.sqrt(settings.target_cost * reference / texel_cost.uv_area(uv_fit))
     packing = pack_charts(uv_fit, face_chart, margin=settings.margin, texels_per_unit=density)

@@ -47,9 +47,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .gmsd import luma as _to_luma
+from .progress import run_generator
 
 __all__ = ["MAP_ROLES", "NORMAL_LIGHTS", "NORMAL_LIGHT_ELEVATION", "PlaneStack", "texture_luma", "texture_planes",
-           "normal_shading", "loss_planes", "conjugate_params", "StackProblem", "StackBatch"]
+           "normal_shading", "loss_planes", "iter_loss_planes", "conjugate_params", "StackProblem", "StackBatch"]
+
+# :func:`iter_loss_planes` hands control back after each band of at most this many texels of a map (its float64
+# copy, check and planes: a few hundredths of a second).
+_TEXELS_PER_BAND = 1 << 19
 
 #: Roles of the maps :func:`loss_planes` takes.
 MAP_ROLES = ("color", "data", "normal")
@@ -163,6 +168,8 @@ def _map_entry(entry):
 def loss_planes(maps, *, lights=NORMAL_LIGHTS, drop_constant=True):
     """Scalar planes in [0, 1] the triangle-wise loss sees for a material's maps.
 
+    :func:`iter_loss_planes` is the same computation as a generator that hands control back while it runs.
+
     Parameters
     ----------
     maps : sequence
@@ -189,35 +196,72 @@ def loss_planes(maps, *, lights=NORMAL_LIGHTS, drop_constant=True):
     ----------
     Sun et al. 2022, Eq. 3, 5 (GMSD of grey screens).
     """
+    return run_generator(iter_loss_planes(maps, lights=lights, drop_constant=drop_constant))
+
+
+def iter_loss_planes(maps, *, lights=NORMAL_LIGHTS, drop_constant=True, clip=False):
+    """Generator form of :func:`loss_planes`: yields ``(done, total)`` maps and returns the :class:`PlaneStack`.
+
+    Each map is converted a band of rows at a time (at most ``_TEXELS_PER_BAND`` texels), with a yield of
+    ``(index, len(maps))`` after each band of map ``index`` and ``(len(maps), len(maps))`` at the end; every
+    operation is per texel, so the planes are bit for bit those of one pass. ``clip=True`` clips every map to
+    [0, 1] first (float images may exceed 1). Use ``stack = yield from iter_loss_planes(...)`` in a pipeline
+    generator.
+    """
+    maps = list(maps)
     planes, names = [], []
     for index, entry in enumerate(maps):
         role, pixels, channels, name = _map_entry(entry)
         name = name or f"{role}{index}"
         if role not in MAP_ROLES:
             raise ValueError(f"map role must be one of {MAP_ROLES}, got {role!r}")
-        pixels = np.asarray(pixels, dtype=np.float64)
+        pixels = np.asarray(pixels)
         if pixels.ndim not in (2, 3) or pixels.shape[0] < 1 or pixels.shape[1] < 1:
             raise ValueError(f"map {name!r} must have shape (h, w) or (h, w, c), got {pixels.shape}")
-        if not np.isfinite(pixels).all():
-            raise ValueError(f"map {name!r} must be finite")
+        h, w = pixels.shape[:2]
+        c = 1 if pixels.ndim == 2 else pixels.shape[2]
+        # The map's plane names, and what a band of its rows (float64) gives each of them.
         if role == "color":
-            planes.append(texture_luma(pixels))
-            names.append(f"{name}.luma")
-            if pixels.ndim == 3 and pixels.shape[2] == 4:
-                planes.append(np.ascontiguousarray(pixels[..., 3]))
-                names.append(f"{name}.alpha")
+            if c not in (1, 3, 4):
+                raise ValueError(f"expected 1, 3 or 4 channels, got {c}")
+            map_names = [f"{name}.luma"] + ([f"{name}.alpha"] if c == 4 else [])
+
+            def convert(band, c=c):
+                luma = _to_luma(band, channel_axis=-1 if band.ndim == 3 else None)
+                return [luma, band[..., 3]] if c == 4 else [luma]
         elif role == "data":
-            stack = pixels[..., None] if pixels.ndim == 2 else pixels
-            chosen = range(stack.shape[2]) if channels is None else channels
-            for c in chosen:
-                if not 0 <= int(c) < stack.shape[2]:
-                    raise ValueError(f"map {name!r} has {stack.shape[2]} channels, channel {c} asked for")
-                planes.append(np.ascontiguousarray(stack[..., int(c)]))
-                names.append(f"{name}.{int(c)}")
+            chosen = [int(channel) for channel in (range(c) if channels is None else channels)]
+            for channel in chosen:
+                if not 0 <= channel < c:
+                    raise ValueError(f"map {name!r} has {c} channels, channel {channel} asked for")
+            map_names = [f"{name}.{channel}" for channel in chosen]
+
+            def convert(band, chosen=chosen):
+                stack = band[..., None] if band.ndim == 2 else band
+                return [stack[..., channel] for channel in chosen]
         else:
-            for light, plane in enumerate(normal_shading(pixels, lights=lights)):
-                planes.append(np.ascontiguousarray(plane))
-                names.append(f"{name}.light{light}")
+            if pixels.ndim != 3 or c < 3:
+                raise ValueError(f"a normal map must have shape (h, w, c) with c >= 3, got {pixels.shape}")
+            map_names = [f"{name}.light{light}"
+                         for light in range(np.asarray(lights, dtype=np.float64).reshape(-1, 3).shape[0])]
+
+            def convert(band):
+                return normal_shading(band, lights=lights)
+        map_planes = [np.empty((h, w)) for _ in map_names]
+        rows_per_band = max(1, _TEXELS_PER_BAND // w)
+        for start in range(0, h, rows_per_band):
+            rows = slice(start, start + rows_per_band)
+            band = np.asarray(pixels[rows], dtype=np.float64)
+            if clip:
+                band = np.clip(band, 0.0, 1.0)
+            if not np.isfinite(band).all():
+                raise ValueError(f"map {name!r} must be finite")
+            for plane, values in zip(map_planes, convert(band)):
+                plane[rows] = values
+            yield index, len(maps)
+        planes += map_planes
+        names += map_names
+    yield len(maps), len(maps)
     if not planes:
         raise ValueError("no maps given")
     if drop_constant:

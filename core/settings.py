@@ -1,12 +1,15 @@
 """The options of one optimization run, shared by the operator, the sidebar, the CLI and the pipeline."""
 import dataclasses
 
-__all__ = ["OptimizeSettings", "COST_ROLES", "role_cost"]
+__all__ = ["OptimizeSettings", "COST_ROLES", "COST_MEASURES", "role_cost"]
 
 # The map roles of ``bridge.material_roles.ROLES`` (kept equal by a test; core does not import bridge), and
 # "normal" for the three normal-map roles at once.
 COST_ROLES = ("base_color", "alpha", "normal_tangent", "normal_object", "normal_world", "emissive",
               "metallic_roughness", "occlusion", "data", "normal")
+
+# What ``target_cost`` measures: the material's image memory relative to the input's, or the paper's texel cost.
+COST_MEASURES = ("memory", "texels")
 
 
 def role_cost(role_costs, role):
@@ -31,7 +34,12 @@ class OptimizeSettings:
     epsilon : float
         Perceptual loss bound per triangle (GMSD), Eq. 7 and 12-14; the paper uses 0.01.
     target_cost : float or None
-        Target relative cost c_r of the result (Eq. 21); ignored when ``resolution`` is set.
+        Target relative cost of the result, as ``cost_measure`` measures it; ignored when ``resolution`` is set.
+    cost_measure : str
+        "memory" (default): ``target_cost`` is the material's image memory relative to the input's, each map's
+        new side ``round(sqrt(c * width * height))`` of its own input image (``c`` its role's cost, see
+        ``role_costs``) and the charts packed to fill the base colour's. "texels": the paper's relative texel
+        cost c_r (Eq. 20-21), the charts packed at the texel density that meets it.
     resolution : int or None
         Explicit side of the new square image instead of a target cost.
     iterations : int
@@ -64,14 +72,17 @@ class OptimizeSettings:
     role_costs : tuple of (str, float)
         Per-role override of the relative cost of the material's other maps, e.g. ``(("normal", 0.2),)``. By
         default every map gets the same relative cost as the base colour, each relative to its own input size (a
-        1k normal map beside a 2k base colour stays half the side): its side is ``resolution * input_side /
-        reference_side``, ``input_side = sqrt(width * height)``. With an override ``c`` the side is multiplied by
-        ``sqrt(c / c_ref)``, ``c_ref`` the base colour's measured relative cost, so the map's relative cost is
-        ``c``. Roles: :data:`COST_ROLES` ("normal" stands for the three normal-map roles); costs in (0, 4].
+        1k normal map beside a 2k base colour stays half the side). With ``cost_measure`` "memory" a map's side is
+        ``round(input_side * sqrt(c))``, ``input_side = sqrt(width * height)``, ``c`` its role's cost or
+        ``target_cost``. With "texels" (or an explicit ``resolution``) it is ``resolution * input_side /
+        reference_side``, multiplied by ``sqrt(c / c_ref)`` for an override ``c``, ``c_ref`` the base colour's
+        measured relative texel cost, so the map's relative texel cost is ``c``. Roles: :data:`COST_ROLES`
+        ("normal" stands for the three normal-map roles); costs in (0, 4].
     """
 
     epsilon: float = 0.01
     target_cost: float = 0.3
+    cost_measure: str = "memory"
     resolution: int | None = None
     iterations: int = 100
     screen_pixels: int = 64
@@ -91,6 +102,9 @@ class OptimizeSettings:
             (0 < self.epsilon < 1, f"epsilon {self.epsilon}: must be in (0, 1)"),
             (self.resolution is not None or 0 < self.target_cost <= 4,
              f"target cost {self.target_cost}: must be in (0, 4]"),
+            (self.cost_measure in COST_MEASURES,
+             f"cost measure {self.cost_measure!r}: must be 'memory' (the images' memory relative to the input's) "
+             "or 'texels' (the paper's relative texel cost, Eq. 21)"),
             (self.resolution is None or 8 <= self.resolution <= 16384,
              f"resolution {self.resolution}: must be in [8, 16384]"),
             (self.iterations >= 10, f"iterations {self.iterations}: at least 10 evaluations per triangle"),

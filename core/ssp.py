@@ -63,11 +63,17 @@ import numpy as np
 from .charts import uv_topology, validate_faces_and_uv
 from .evaluation import _triangle_frames
 from .mesh import check_mesh
+from .progress import run_generator
 
-__all__ = ["signal_metric_tensors", "expected_stretch", "ssp_energy", "SSPResult", "solve_ssp", "ssp_targets"]
+__all__ = ["signal_metric_tensors", "iter_signal_metric_tensors", "expected_stretch", "ssp_energy", "SSPResult",
+           "solve_ssp", "ssp_targets", "iter_ssp_targets"]
 
 _LUMA = np.array([0.299, 0.587, 0.114])
-_MAX_POINTS_PER_CHUNK = 1 << 20
+# The generator forms hand control back after each slice of work, so a modal operator driving them keeps the
+# interface responsive: a slice of faces holds at most this many integration points (a few tens of ms and tens
+# of MB), a band of texture rows at most this many texels (its check and float64 copy, a few ms).
+_POINTS_PER_SLICE = 1 << 16
+_TEXELS_PER_SLICE = 1 << 20
 
 
 def _check_mesh(V, F, uv):
@@ -79,8 +85,11 @@ def _check_mesh(V, F, uv):
     return V, F, uv
 
 
-def _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, caller):
+def _iter_checked_problem(V, F, uv, texture, metric, geometric_weight, channels, caller):
     """Checked mesh, its surface frames and the blended metric (``caller`` names the function in errors).
+
+    A generator: yields ``(done, total)`` faces while it integrates the tensors
+    (:func:`iter_signal_metric_tensors`; nothing when ``metric`` is given) and returns the tuple below.
 
     Returns
     -------
@@ -97,30 +106,47 @@ def _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, call
     if metric is None:
         if texture is None:
             raise ValueError(f"{caller} needs a texture or a precomputed metric")
-        metric = signal_metric_tensors(V, F, uv, texture, channels=channels)
+        metric = yield from iter_signal_metric_tensors(V, F, uv, texture, channels=channels)
     metric = _regularized(_check_metric(metric, F.shape[0]), area, geometric_weight)
     return V, F, uv, X, area, metric
 
 
-def _texture_channels(texture, channels):
+def _checked_texture(texture, channels):
+    """``texture`` as an array, its shape and ``channels`` checked; and the empty signal array for it.
+
+    Returns
+    -------
+    texture : ndarray
+    signal : (h, w, 1) or (h, w, 3) float64 ndarray
+        Uninitialized; :func:`_fill_signal` fills it band by band. One contiguous float64 array:
+        :func:`_bilinear_gradient` gathers from its flat rows once per slice.
+    """
     texture = np.asarray(texture)
     if texture.ndim not in (2, 3) or texture.shape[0] < 2 or texture.shape[1] < 2:
         raise ValueError(f"texture must have shape (h, w) or (h, w, c) with h, w >= 2, got {texture.shape}")
-    if not np.all(np.isfinite(texture)):
-        raise ValueError("texture holds NaN or infinite values")
     if channels not in ("all", "luma"):
         raise ValueError(f"channels must be 'all' or 'luma', got {channels!r}")
-    # One contiguous float64 copy: _bilinear_gradient gathers from its flat rows once per chunk.
-    if texture.ndim == 2:
-        return np.ascontiguousarray(texture[..., None], dtype=np.float64)
-    c = texture.shape[2]
-    if c == 1:
-        return np.ascontiguousarray(texture, dtype=np.float64)
-    if c not in (3, 4):
+    c = 1 if texture.ndim == 2 else texture.shape[2]
+    if c not in (1, 3, 4):
         raise ValueError(f"expected 1, 3 or 4 texture channels, got {c}")
-    if channels == "luma":
-        return (texture[..., :3].astype(np.float64) @ _LUMA)[..., None]
-    return np.ascontiguousarray(texture[..., :3], dtype=np.float64)
+    signal_channels = 3 if c > 1 and channels == "all" else 1
+    return texture, np.empty(texture.shape[:2] + (signal_channels,), dtype=np.float64)
+
+
+def _fill_signal(texture, channels, signal, rows):
+    """Check that the texture ``rows`` (a slice) are finite and write their signal into ``signal[rows]``: the
+    channels as float64 (alpha dropped), or their Rec. 601 luma with ``channels="luma"``."""
+    band = texture[rows]
+    if not np.all(np.isfinite(band)):
+        raise ValueError("texture holds NaN or infinite values")
+    if band.ndim == 2:
+        signal[rows, :, 0] = band
+    elif band.shape[2] == 1:
+        signal[rows] = band
+    elif channels == "luma":
+        signal[rows, :, 0] = band[..., :3].astype(np.float64) @ _LUMA
+    else:
+        signal[rows] = band[..., :3]
 
 
 def _subdivision_barycentrics(k):
@@ -182,6 +208,9 @@ def _inv2(M):
 def signal_metric_tensors(V, F, uv, texture, *, channels="all", samples_per_texel=4.0, max_level=16):
     """Signal-stretch metric tensor of every triangle, ``Gamma_T = integral_T (grad f)(grad f)^T dA``.
 
+    :func:`iter_signal_metric_tensors` is the same computation as a generator that hands control back while it
+    runs.
+
     Parameters
     ----------
     V : (n, 3) array_like of float
@@ -209,8 +238,21 @@ def signal_metric_tensors(V, F, uv, texture, *, channels="all", samples_per_texe
     ----------
     Sander et al. 2002, Sec. 3-4 (signal stretch, pre-integrated metric tensor); Sun et al. 2022, Eq. 9.
     """
+    return run_generator(iter_signal_metric_tensors(V, F, uv, texture, channels=channels,
+                                                    samples_per_texel=samples_per_texel, max_level=max_level))
+
+
+def iter_signal_metric_tensors(V, F, uv, texture, *, channels="all", samples_per_texel=4.0, max_level=16):
+    """Generator form of :func:`signal_metric_tensors`: yields ``(done, total)`` and returns the tensors.
+
+    ``total`` is the number of triangles with surface area (the ones integrated), ``done`` how many of them are
+    integrated so far. It yields ``(0, total)`` after each band of texture rows it checks and converts, and
+    ``(done, total)`` after each slice of triangles (at most ``_POINTS_PER_SLICE`` integration points); the
+    result does not depend on the slicing, it is bit for bit that of one pass. Use
+    ``metric = yield from iter_signal_metric_tensors(...)`` in a pipeline generator.
+    """
     V, F, uv = _check_mesh(V, F, uv)
-    signal = _texture_channels(texture, channels)
+    texture, signal = _checked_texture(texture, channels)
     if not samples_per_texel > 0:
         raise ValueError(f"samples_per_texel must be positive, got {samples_per_texel}")
     if int(max_level) < 1:
@@ -220,24 +262,33 @@ def signal_metric_tensors(V, F, uv, texture, *, channels="all", samples_per_texe
     X, area = _triangle_frames(V, F)
     U = _uv_edges(uv)
     valid = area > 0
+    total = int(np.count_nonzero(valid))
     # Map from the surface frame to UV: A = U X^-1 (defined wherever the surface triangle is not degenerate).
     A = np.zeros((m, 2, 2))
     A[valid] = U[valid] @ _inv2(X[valid])
+
+    rows_per_band = max(1, _TEXELS_PER_SLICE // w)
+    for start in range(0, h, rows_per_band):
+        _fill_signal(texture, channels, signal, slice(start, start + rows_per_band))
+        yield 0, total
 
     texel_area = 0.5 * np.abs(_det(U)) * w * h
     level = np.clip(np.ceil(np.sqrt(samples_per_texel * texel_area)), 1, int(max_level)).astype(np.int64)
     texel_scale = np.array([w, h], dtype=np.float64)
     gamma_uv = np.zeros((m, 2, 2))  # mean of (grad_uv f)(grad_uv f)^T over the triangle
+    done = 0
     for k in np.unique(level[valid]):
         bary = _subdivision_barycentrics(int(k))
         faces = np.flatnonzero(valid & (level == k))
-        per_chunk = max(1, _MAX_POINTS_PER_CHUNK // bary.shape[0])
-        for start in range(0, faces.size, per_chunk):
-            chunk = faces[start:start + per_chunk]
+        per_slice = max(1, _POINTS_PER_SLICE // bary.shape[0])
+        for start in range(0, faces.size, per_slice):
+            chunk = faces[start:start + per_slice]
             points = np.einsum("sk,tkd->tsd", bary, uv[chunk]) * texel_scale  # (t, s, 2) texel coords
             grad = _bilinear_gradient(signal, points.reshape(-1, 2)) * texel_scale  # d/du = w d/dx
             grad = grad.reshape(chunk.size, bary.shape[0], -1, 2)
             gamma_uv[chunk] = np.einsum("tscd,tsce->tde", grad, grad) / bary.shape[0]
+            done += chunk.size
+            yield done, total
     # grad_x f = A^T grad_uv f, so Gamma = |T| A^T E[g g^T] A.
     return area[:, None, None] * (np.swapaxes(A, 1, 2) @ gamma_uv @ A)
 
@@ -469,7 +520,8 @@ def solve_ssp(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, cha
     Sander et al. 2002 (energy); Liu and Nocedal 1989 (L-BFGS); Smith and Schaefer 2015 (flip-free step
     bound).
     """
-    V, F, uv, X, area, metric = _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, "solve_ssp")
+    V, F, uv, X, area, metric = run_generator(_iter_checked_problem(V, F, uv, texture, metric, geometric_weight,
+                                                                    channels, "solve_ssp"))
     m = F.shape[0]
     if int(max_iterations) < 1 or int(history_size) < 1:
         raise ValueError("max_iterations and history_size must be at least 1")
@@ -596,6 +648,8 @@ def solve_ssp(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, cha
 def ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, channels="all"):
     """SSP's expected stretch as targets of the mesh-wise stage with ``w_R = 0`` (SSPOP, Sec. 5.2.2).
 
+    :func:`iter_ssp_targets` is the same computation as a generator that hands control back while it runs.
+
     Parameters
     ----------
     V : (n, 3) array_like of float
@@ -639,7 +693,19 @@ def ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, c
     ----------
     Sun et al. 2022, Sec. 5.2.2 (SSPOP), Eq. 16-19; Sander et al. 2002.
     """
-    V, F, uv, X, area, metric = _checked_problem(V, F, uv, texture, metric, geometric_weight, channels, "ssp_targets")
+    return run_generator(iter_ssp_targets(V, F, uv, texture, metric=metric, geometric_weight=geometric_weight,
+                                          channels=channels))
+
+
+def iter_ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, channels="all"):
+    """Generator form of :func:`ssp_targets`: yields ``(done, total)`` and returns ``(params, w_R, w_S)``.
+
+    The yields are those of :func:`iter_signal_metric_tensors` (none when ``metric`` is given); :func:`ssp_targets`
+    is this generator driven to the end. Use ``params, w_R, w_S = yield from iter_ssp_targets(...)`` in a
+    pipeline generator, or drive it one step per timer tick.
+    """
+    V, F, uv, X, area, metric = yield from _iter_checked_problem(V, F, uv, texture, metric, geometric_weight,
+                                                                 channels, "ssp_targets")
     m = F.shape[0]
     U_in = _uv_edges(uv)
     valid = (area > 0) & _has_uv_area(uv)

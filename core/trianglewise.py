@@ -86,6 +86,7 @@ import dataclasses
 import math
 import os
 import sys
+import threading
 import time
 import types
 
@@ -747,7 +748,15 @@ class LossNotEvaluableError(ArithmeticError):
     """The perceptual loss E of a triangle came out NaN or infinite for a deformation of the box."""
 
 
+# One pool starts at a time: _spawn_environment swaps process-wide state (environment, __main__), and a pool
+# still starting in the background after a cancel may overlap the next run's.
+_SPAWN_LOCK = threading.Lock()
+
+
 def _make_pool(workers, state):
+    """A pool of ``workers`` spawned processes, each initialized with ``state``; None when no Python interpreter
+    for them is found. Takes about a second (each worker starts Python and unpickles ``state`` before the next
+    starts): :func:`_run_chunks` calls it in a background thread."""
     import multiprocessing
 
     executable = _python_executable()
@@ -757,8 +766,51 @@ def _make_pool(workers, state):
     if not _looks_like_python(sys.executable):
         context.set_executable(executable)
     namespace = {"parents": _package_parents(), "module_name": __name__, "state": state}
-    with _spawn_environment():
+    with _SPAWN_LOCK, _spawn_environment():
         return context.Pool(workers, initializer=exec, initargs=(_BOOTSTRAP, namespace))
+
+
+class _InThread:
+    """``function(*args)`` running in a daemon thread, so that a generator can hand control back while it runs.
+
+    Starting the worker pool and waiting for its processes to exit take about a second each; in a thread they
+    leave the generator free to yield every ``WAIT_SECONDS`` (a modal operator's tick) meanwhile.
+    """
+
+    def __init__(self, function, *args):
+        self._value = self._error = None
+        self._thread = threading.Thread(target=self._run, args=(function, args), daemon=True,
+                                        name="perceptual_uv-workers")
+        self._thread.start()
+
+    def _run(self, function, args):
+        try:
+            self._value = function(*args)
+        except BaseException as error:  # noqa: BLE001  raised again in the generator that waits for it
+            self._error = error
+
+    def wait(self):
+        """Generator: yield None every ``WAIT_SECONDS`` until the function has returned; return its value, or
+        raise its exception."""
+        self._thread.join(WAIT_SECONDS)
+        while self._thread.is_alive():
+            yield None
+            self._thread.join(WAIT_SECONDS)
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+    def join(self):
+        """Block until the function has returned; its value, or None if it raised."""
+        self._thread.join()
+        return self._value
+
+
+def _terminate_when_started(starting):
+    """Stop the pool ``starting`` (an :class:`_InThread` of :func:`_make_pool`) makes, once it is made."""
+    pool = starting.join()
+    if pool is not None:
+        pool.terminate()
 
 
 def _chunks(faces, size):
@@ -775,7 +827,17 @@ def _run_chunks(kind, state, faces, workers, chunk_size, scheduler=None):
     if workers == 0:
         workers = os.cpu_count() or 1
     workers = min(workers, len(chunks))
-    pool = _make_pool(workers, state) if workers > 1 else None
+    pool = None
+    if workers > 1:
+        starting = _InThread(_make_pool, workers, state)
+        try:
+            pool = yield from starting.wait()
+        except BaseException:
+            # Closed (a cancel) or interrupted while the workers start: they are stopped once they are up, by a
+            # thread of their own, so that the cancel does not wait for them (not a daemon: an interpreter that
+            # exits meanwhile waits for it, rather than leave workers starting with a parent gone).
+            threading.Thread(target=_terminate_when_started, args=(starting,)).start()
+            raise
     if pool is None:
         for chunk in chunks:
             yield (_optimize_chunk if kind == "optimize" else _losses_chunk)(state, chunk)
@@ -799,7 +861,7 @@ def _run_chunks(kind, state, faces, workers, chunk_size, scheduler=None):
                     yield None  # nothing finished yet: the caller gets control back (a modal operator's tick)
             yield output
         pool.close()
-        pool.join()
+        yield from _InThread(pool.join).wait()  # the workers take about a second to exit
     finally:
         pool.terminate()
 

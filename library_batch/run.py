@@ -47,6 +47,7 @@ def batch_settings(args):
     """The settings that change an asset's result (part of its content key), from the parsed ``batch`` args."""
     return {"version": _version(), "format": args.format, "object": args.object, "uv": args.uv,
             "epsilon": args.epsilon, "target_cost": None if args.resolution is not None else args.cost,
+            "cost_measure": None if args.resolution is not None else args.cost_measure,
             "resolution": args.resolution, "iterations": args.iterations, "screen_pixels": args.screen_pixels,
             "max_screen_pixels": args.max_screen_pixels, "margin": args.margin, "seed": args.seed,
             "role_costs": sorted(args.cost_for)}
@@ -55,7 +56,8 @@ def batch_settings(args):
 def optimize_options(args):
     """The ``optimize`` options of every asset's run, from the parsed ``batch`` args."""
     options = ["--epsilon", repr(args.epsilon)]
-    options += ["--resolution", str(args.resolution)] if args.resolution is not None else ["--cost", repr(args.cost)]
+    options += (["--resolution", str(args.resolution)] if args.resolution is not None else
+                ["--cost", repr(args.cost), "--cost-measure", args.cost_measure])
     options += ["--iterations", str(args.iterations), "--screen-pixels", str(args.screen_pixels),
                 "--max-screen-pixels", str(args.max_screen_pixels), "--margin", str(args.margin),
                 "--workers", str(args.workers), "--seed", str(args.seed)]

@@ -60,9 +60,11 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
 
     def _finish(self, context, result):
         report = result.report
-        self.report({"INFO"}, f"{report['uv_map']}: {report['resolution']} px image '{report['image']}', relative "
-                    f"cost {report['relative_cost']:.2f}, {report['triangles_within_bound']:.0%} of triangles "
-                    f"within the loss bound, {report['times_s']['total']:.0f} s")
+        memory = report.get("memory_ratio")
+        memory = f"image memory {memory:.2f} of the input's, " if memory is not None else ""
+        self.report({"INFO"}, f"{report['uv_map']}: {report['resolution']} px image '{report['image']}', {memory}"
+                    f"relative texel cost {report['relative_cost']:.2f}, {report['triangles_within_bound']:.0%} of "
+                    f"triangles within the loss bound, {report['times_s']['total']:.0f} s")
         for note in report.get("notes", []):
             self.report({"INFO"}, note)
         for warning in report.get("warnings", []):

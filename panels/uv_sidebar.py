@@ -5,6 +5,7 @@ import bpy
 from ..operators.clear_cache import UV_OT_perceptual_clear_cache
 from ..operators.optimize_uvs import UV_OT_perceptual_optimize
 from ..operators.show_loss import UV_OT_perceptual_show_loss
+from ..properties import ROLE_COST_FIELDS
 
 
 def draw_uv_menu_entry(self, context):
@@ -29,8 +30,17 @@ class IMAGE_PT_perceptual_uv(bpy.types.Panel):
         col.prop(settings, "resolution_mode")
         if settings.resolution_mode == "COST":
             col.prop(settings, "target_cost")
+            col.prop(settings, "cost_measure")
         else:
             col.prop(settings, "resolution")
+
+        # One cost per kind of map (0: the Relative Cost); the operator turns the others into role costs.
+        header, body = layout.panel("perceptual_uv_map_costs", default_closed=True)
+        header.label(text="Per-Map Costs")
+        if body is not None:
+            col = body.column()
+            for name, _, _ in ROLE_COST_FIELDS:
+                col.prop(settings, name)
 
         col = layout.column(heading="Optimization")
         col.prop(settings, "iterations")

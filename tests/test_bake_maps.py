@@ -216,6 +216,31 @@ def test_each_map_keeps_its_size_relative_to_its_input():
         OptimizeSettings(role_costs=(("normal", 0.0),))
 
 
+def test_with_the_cost_in_memory_each_map_gets_that_share_of_its_own_pixels():
+    from types import SimpleNamespace
+
+    from perceptual_uv.bridge.material_copy import memory_resolution
+    from perceptual_uv.bridge.pipeline import _memory_side
+
+    def record(role, width, height=None):
+        return SimpleNamespace(role=role, image=SimpleNamespace(size=(width, height or width)))
+
+    quarter = OptimizeSettings(target_cost=0.25)
+    # a 1k normal map beside a 2k base colour at a quarter of the memory: each keeps half its side
+    assert _memory_side(record("base_color", 2048), quarter) == 1024
+    assert _memory_side(record("normal_tangent", 1024), quarter) == 512
+    # normal maps at a sixteenth: a quarter of the side; the other maps keep the run's cost
+    override = OptimizeSettings(target_cost=0.25, role_costs=(("normal", 0.0625),))
+    assert _memory_side(record("normal_tangent", 1024), override) == 256
+    assert _memory_side(record("base_color", 2048), override) == 1024
+    assert _memory_side(record("base_color", 64, 32), quarter) == 23  # sqrt(0.25 * 64 * 32) = 22.63
+    assert _memory_side(record("emissive", 64), OptimizeSettings(target_cost=0.01)) == 8  # 6.4: at least 8
+    assert memory_resolution((1024, 1024), 0.3) == 561  # sqrt(0.3) * 1024 = 560.87
+    assert memory_resolution((16384, 16384), 4) == 16384  # 32768: at most 16384
+    with pytest.raises(ValueError, match="positive"):
+        memory_resolution((64, 64), 0)
+
+
 # --- the whole run -------------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -279,6 +304,26 @@ def test_a_second_run_optimizes_what_the_copy_shows(pbr_run):
     assert copy[COPY_PROPERTY] == "pbr_material" and copy.name.startswith("pbr_material_perceptual")
     assert {node.image for node in image_nodes(copy.node_tree) if node.type == "TEX_IMAGE"} == set(second.images)
     assert not read_material(copy, source_uv=first.uv_map, render_uv="UVMap").maps
+
+
+def test_a_memory_cost_sizes_every_map_from_its_own_pixels():
+    """Cost 0.25 as image memory: the 64 px base colour and ORM and the 32 and 16 px normal and emissive maps
+    each keep half their side, so the material's memory is a quarter of the input's; normal maps at 0.0625 keep a
+    quarter of theirs."""
+    sides = {}
+    for role_costs in ((), (("normal", 0.0625),)):
+        settings = OptimizeSettings(**dict(FAST, target_cost=0.25, cost_measure="memory", role_costs=role_costs))
+        report = run_to_end(optimize_objects([pbr_grid()], settings)).report
+        assert report["cost_measure"] == "memory" and report["resolution"] == 32
+        sides[role_costs] = {entry["role"]: entry["new_size"] for entry in report["maps"]}
+        if not role_costs:
+            assert report["memory_ratio"] == pytest.approx(0.25, rel=1e-12)
+        for entry in report["maps"]:
+            share = (entry["new_size"][0] / entry["input_size"][0]) ** 2
+            assert entry["raw_bytes_after"] == pytest.approx(share * entry["raw_bytes_before"], rel=1e-12)
+    assert sides[()] == {"base_color": [32, 32], "metallic_roughness": [32, 32], "normal_tangent": [16, 16],
+                         "emissive": [8, 8]}
+    assert sides[(("normal", 0.0625),)] == dict(sides[()], normal_tangent=[8, 8])
 
 
 def test_a_cancelled_run_removes_every_image_material_and_group():

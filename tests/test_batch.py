@@ -144,6 +144,27 @@ def test_batch_options_reuse_optimize_options_and_check_their_values():
             parse_args(["batch", "lib", "--out", "o", *bad])
 
 
+def test_the_cost_measure_reaches_every_asset_and_its_key():
+    from perceptual_uv.library_batch.run import batch_settings, optimize_options
+
+    def parsed(*extra):
+        return parse_args(["batch", "lib", "--out", "o", "--cost", "0.25", *extra])
+
+    memory, texels = parsed(), parsed("--cost-measure", "texels")
+    assert optimize_options(memory)[2:6] == ["--cost", "0.25", "--cost-measure", "memory"]
+    assert optimize_options(texels)[2:6] == ["--cost", "0.25", "--cost-measure", "texels"]
+    child = parse_args(["optimize", str(SPOT / "spot_triangulated.obj"), "--out", "x.blend",
+                        *optimize_options(texels)])
+    assert child.settings == texels.settings  # the child runs with the batch's settings
+    assert batch_settings(memory)["cost_measure"] == "memory" and batch_settings(texels)["cost_measure"] == "texels"
+    models = [SPOT / "spot_triangulated.obj"]
+    keys = [plan_assets(models, [SPOT], out=pathlib.Path("o"), settings=batch_settings(args))[0].key
+            for args in (memory, texels)]
+    assert keys[0] != keys[1]  # another measure is another result: not skipped as done
+    explicit = parse_args(["batch", "lib", "--out", "o", "--resolution", "64"])
+    assert "--cost-measure" not in optimize_options(explicit) and batch_settings(explicit)["cost_measure"] is None
+
+
 def test_manifest_keeps_the_last_entry_and_knows_what_is_finished(tmp_path):
     manifest = Manifest(tmp_path)
     (tmp_path / "a").mkdir()

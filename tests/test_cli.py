@@ -68,6 +68,17 @@ def test_scheduler_fresh_and_role_costs_reach_the_settings():
     assert batch.scheduler == "tcp://host:8786" and batch.settings.scheduler is None  # each asset runs locally
 
 
+def test_the_cost_measure_reaches_the_settings():
+    settings = parse_args(["optimize", str(SPOT), "--out", "x.blend"]).settings
+    assert settings.cost_measure == "memory"  # --cost is the images' memory relative to the input's
+    texels = parse_args(["optimize", str(SPOT), "--out", "x.blend", "--cost", "0.2", "--cost-measure", "texels",
+                         "--cost-for", "normal=0.1"]).settings
+    assert (texels.target_cost, texels.cost_measure, texels.role_costs) == (0.2, "texels", (("normal", 0.1),))
+    assert parse_args(["batch", str(SPOT), "--out", "lib", "--cost-measure", "texels"]).settings.cost_measure == \
+        "texels"
+    assert main(["optimize", str(SPOT), "--out", "x.blend", "--cost-measure", "bytes"]) == 2
+
+
 def test_cost_and_resolution_are_exclusive():
     assert main(["optimize", str(SPOT), "--out", "x.blend", "--cost", "0.3", "--resolution", "512"]) == 2
 

@@ -48,7 +48,8 @@ print("JSON" + json.dumps({{"uv_layers": [l.name for l in obj.data.uv_layers], "
 
 def test_optimize_blend_out(patch_blend, tmp_path):
     out, report_path = tmp_path / "out.blend", tmp_path / "report.json"
-    result = run_cli("optimize", str(patch_blend), "--out", str(out), "--report", str(report_path), *FAST_ARGS)
+    result = run_cli("optimize", str(patch_blend), "--out", str(out), "--report", str(report_path), *FAST_ARGS,
+                     "--cost-measure", "texels")
     assert result.returncode == 0, result.stderr[-3000:]
     assert f"result: {out}" in result.stdout
     report = json.loads(report_path.read_text())

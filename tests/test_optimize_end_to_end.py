@@ -67,8 +67,9 @@ def optimized(registered, spot_obj):
     obj = spot_patch(spot_obj)
     before = snapshot(obj)
     bpy.ops.ed.undo_push(message="before Optimize UVs")
-    # The second argument asks for the undo push that a click in the UI makes.
-    result = bpy.ops.uv.perceptual_optimize("EXEC_DEFAULT", True, **FAST)
+    # The second argument asks for the undo push that a click in the UI makes. The paper's texel cost (Eq. 21):
+    # test_new_uv_map_is_packed_and_meets_the_cost checks it.
+    result = bpy.ops.uv.perceptual_optimize("EXEC_DEFAULT", True, **FAST, cost_measure="texels")
     return obj, before, result
 
 
@@ -146,6 +147,27 @@ def test_cancel_leaves_nothing(registered, spot_obj, stages):
     assert tuple(stages_seen) == stages
 
 
+def test_reading_and_signal_stretch_hand_control_back_step_by_step(registered, spot_obj):
+    """Driven one step at a time as the modal operator drives it, the run reads in several parts, builds the
+    loss's planes a band of texture rows per step and measures the texture's signal stretch a slice of faces per
+    step, counting up to every face."""
+    import re
+
+    obj = spot_patch(spot_obj, above=1.0)
+    steps = [(progress.stage, progress.message) for progress in optimize_objects([obj], OptimizeSettings(**FAST))]
+    reads = [message for stage, message in steps if stage == "read"]
+    parts = ["Reading the mesh", "Loading the texture", "Reading the texture's pixels", "Checking the mesh and texture",
+             "Reading the material's maps", "Looking for the triangle-wise results of an earlier run"]
+    assert [message for message in reads if message in parts] == parts
+    planes = [message for message in reads if message.startswith("Building the loss's planes: ")]
+    assert len(planes) >= 2 and planes[-1].startswith("Building the loss's planes: 1/1")
+    signal = [re.search(r": (\d+)/(\d+)", message) for stage, message in steps
+              if message.startswith("Measuring the texture's signal stretch")]
+    done = [int(match[1]) for match in signal]
+    assert len(signal) > 2 and done == sorted(done) and done[0] < done[-1] == int(signal[-1][2])
+    assert len(obj.data.polygons) == done[-1]  # every face of the patch has surface area
+
+
 def test_the_largest_view_reaches_both_triangle_wise_calls(registered, spot_obj, monkeypatch):
     from perceptual_uv.bridge.pipeline import run_to_end
     from perceptual_uv.core import trianglewise
@@ -187,7 +209,8 @@ def test_report_fields(registered, spot_obj, tmp_path):
     from perceptual_uv.bridge.pipeline import run_to_end
 
     obj = spot_patch(spot_obj, above=1.0)
-    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path)))
+    settings = OptimizeSettings(**FAST, cost_measure="texels")  # the paper's cost, checked below
+    result = run_to_end(optimize_objects([obj], settings, output_dir=str(tmp_path)))
     report = result.report
     for key in ("faces", "vertices", "epsilon", "target_cost", "resolution", "relative_cost", "times_s",
                 "flipped_triangles", "triangles_within_bound", "uv_map", "image"):
@@ -224,3 +247,96 @@ def test_report_fields(registered, spot_obj, tmp_path):
     assert report["image_coverage"] == pytest.approx(area, rel=1e-9) and 0.25 < area <= 1
     assert not any("cover" in note for note in report["notes"])
     assert (tmp_path / "spot_texture_perceptual.png").is_file() and report["image_file"].startswith(str(tmp_path))
+
+
+# --- the cost a user sets: image memory (issue 23, item 5) ---------------------------------------------------
+
+def test_the_default_cost_is_the_images_memory(registered, spot_obj, tmp_path):
+    """At the default measure the 1024 x 1024 input at cost 0.3 gives a 561 x 561 image (sqrt(0.3) * 1024 =
+    560.87), the islands packed to fill it; the report's memory ratio is the cost within that rounding, and its
+    relative cost stays the paper's texel cost of the saved map."""
+    from perceptual_uv.bridge.mesh_io import read_mesh
+    from perceptual_uv.bridge.pipeline import run_to_end
+
+    obj = spot_patch(spot_obj, above=1.0)
+    assert OptimizeSettings(**FAST).cost_measure == "memory"
+    report = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path))).report
+    assert report["cost_measure"] == "memory" and report["target_cost"] == 0.3
+    assert report["resolution"] == 561 and bpy.data.images[report["image"]].size[:] == (561, 561)
+    assert report["maps"][0]["new_size"] == [561, 561] and report["maps"][0]["input_size"] == [1024, 1024]
+    assert report["memory_ratio"] == pytest.approx(561 ** 2 / 1024 ** 2, rel=1e-12)
+    assert abs(report["memory_ratio"] - 0.3) <= (2 * 561 + 1) / 1024 ** 2  # one pixel of side either way
+    new = read_mesh(obj, uv_name=report["uv_map"]).uv
+    source = read_mesh(obj, uv_name=report["source_uv_map"]).uv
+    assert new.min() >= 0 and new.max() <= 1 and report["image_coverage"] > 0.25
+    assert report["relative_cost"] == pytest.approx(relative_cost(new, 561, reference_uv=source,
+                                                                  reference_resolution=1024), rel=1e-6)
+    # the patch uses a sliver of the input image: 0.3 of its memory holds far more texels than it had, said so
+    assert report["relative_cost"] > 1
+    (note,) = [note for note in report["notes"] if "texel density" in note]
+    assert f"{report['relative_cost']:.2f} times the input's texels" in note
+
+
+def test_an_explicit_resolution_wins_over_either_measure(registered, spot_obj, tmp_path):
+    from perceptual_uv.bridge.pipeline import run_to_end
+
+    obj = spot_patch(spot_obj, above=1.0)
+    settings = OptimizeSettings(**dict(FAST, resolution=96))
+    report = run_to_end(optimize_objects([obj], settings, output_dir=str(tmp_path))).report
+    assert report["resolution"] == 96 and report["cost_measure"] is None and report["target_cost"] is None
+
+
+def test_the_sidebar_fields_become_settings(registered):
+    from perceptual_uv.properties import ROLE_COST_FIELDS, settings_from
+
+    reset_blender_scene()
+    props = bpy.context.scene.perceptual_uv
+    assert props.cost_measure == "memory" and settings_from(props).cost_measure == "memory"
+    assert settings_from(props).role_costs == ()  # every per-map field 0: the Relative Cost
+    assert {role for _, role, _ in ROLE_COST_FIELDS} == {"normal", "metallic_roughness", "emissive", "occlusion",
+                                                         "alpha", "data"}
+    props.cost_measure = "texels"
+    props.cost_normal = 0.0625
+    props.cost_emissive = 0.5
+    settings = settings_from(props)
+    assert settings.cost_measure == "texels"
+    assert settings.role_costs == (("normal", 0.0625), ("emissive", 0.5))
+    # the operator carries the same fields (redo panel, scripts)
+    assert {"cost_measure", *(name for name, _, _ in ROLE_COST_FIELDS)} <= set(
+        bpy.ops.uv.perceptual_optimize.get_rna_type().properties.keys())
+
+
+class _Layout:
+    """Records what a panel's draw puts in its layout (headless Blender cannot draw)."""
+
+    def __init__(self, drawn):
+        self.drawn = drawn
+
+    def __getattr__(self, name):
+        if name in ("column", "row", "box"):
+            return lambda *args, **kwargs: self
+        if name == "panel":
+            return lambda idname, **kwargs: (self, self)
+        if name in ("prop", "label", "operator"):
+            return lambda *args, **kwargs: self.drawn.append((name, args[1] if name == "prop" else kwargs)) or self
+        raise AttributeError(name)
+
+    def __setattr__(self, name, value):
+        object.__setattr__(self, name, value)
+
+
+def test_the_sidebar_shows_the_measure_and_a_cost_per_kind_of_map(registered):
+    from types import SimpleNamespace
+
+    from perceptual_uv.panels.uv_sidebar import IMAGE_PT_perceptual_uv
+    from perceptual_uv.properties import ROLE_COST_FIELDS
+
+    reset_blender_scene()
+    drawn = []
+    panel = SimpleNamespace(layout=_Layout(drawn))
+    IMAGE_PT_perceptual_uv.draw(panel, SimpleNamespace(scene=bpy.context.scene))
+    props = [what for kind, what in drawn if kind == "prop"]
+    costs = [name for name, _, _ in ROLE_COST_FIELDS]
+    assert props[props.index("target_cost") + 1] == "cost_measure"
+    assert props[props.index("cost_measure") + 1:props.index("cost_measure") + 1 + len(costs)] == costs
+    assert ("label", {"text": "Per-Map Costs"}) in drawn

@@ -96,7 +96,7 @@ def test_the_pipeline_reuses_triangle_results_and_only_then(spot_obj):
         reset_blender_scene()
         import_model(spot_obj)
         [obj] = textured_objects()
-        options = dict(iterations=10, screen_pixels=32, max_screen_pixels=32, workers=1)
+        options = dict(iterations=10, screen_pixels=32, max_screen_pixels=32, workers=1, cost_measure="texels")
         finished = run_to_end(optimize_objects([obj], OptimizeSettings(**dict(options, **settings))))
         values = np.empty(2 * len(obj.data.loops))
         obj.data.uv_layers[finished.uv_map].uv.foreach_get("vector", values)

@@ -29,3 +29,11 @@ def test_bad_values_are_refused_with_the_field_named(field, value, fragment):
 
 def test_explicit_resolution_ignores_the_cost():
     assert OptimizeSettings(resolution=512, target_cost=0.0).resolution == 512
+
+
+def test_the_cost_is_image_memory_unless_texels_are_asked_for():
+    assert OptimizeSettings().cost_measure == "memory"
+    assert OptimizeSettings(cost_measure="texels").cost_measure == "texels"
+    with pytest.raises(ValueError, match=r"cost measure 'bytes': must be 'memory' .* or 'texels' \(the paper's "
+                                         r"relative texel cost, Eq. 21\)"):
+        OptimizeSettings(cost_measure="bytes")

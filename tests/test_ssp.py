@@ -9,7 +9,10 @@ from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.evaluation import _triangle_frames
 from perceptual_uv.core.mesh import read_obj
-from perceptual_uv.core.ssp import expected_stretch, signal_metric_tensors, solve_ssp, ssp_energy, ssp_targets
+from perceptual_uv.core import ssp
+from perceptual_uv.core.progress import run_generator
+from perceptual_uv.core.ssp import (expected_stretch, iter_signal_metric_tensors, iter_ssp_targets,
+                                    signal_metric_tensors, solve_ssp, ssp_energy, ssp_targets)
 
 TRIANGLE = np.array([[[0.2, 0.2], [0.8, 0.2], [0.3, 0.9]]])
 FACE = np.array([[0, 1, 2]])
@@ -260,6 +263,57 @@ def test_sspop_through_the_mesh_wise_solver_matches_ssp_on_free_triangles():
     result = meshwise.solve_meshwise(F, uv, params, w_R, w_S)
     assert result.flipped == 0
     assert ssp_energy(V, F, result.uv, metric) == pytest.approx(_lower_bound(metric, area), rel=1e-6)
+
+
+# --- generator forms ------------------------------------------------------------------------------------------
+
+def _steps(generator):
+    """Every item ``generator`` yields, and what it returns."""
+    steps = []
+    result = run_generator(generator, lambda *item: steps.append(item))
+    return steps, result
+
+
+def test_generator_forms_hand_control_back_and_do_not_depend_on_the_slicing(monkeypatch):
+    """Slices of 256 integration points and 640 texels (several per level of subdivision, several bands of
+    rows) give, bit for bit, the tensors of a single slice per level and band, and the same targets.
+
+    The targets are compared to 1e-12: the 2 x 2 eigen-decompositions that turn the tensors into targets vary
+    in the last bit from one call to the next (with the same tensors and the same slicing, as they did when
+    the computation was one call)."""
+    V, F, uv = _grid(12)  # 288 faces
+    uv = 0.1 + 0.8 * uv
+    texture = np.random.default_rng(3).random((80, 64, 4))
+    V = V + np.array([0.0, 0.0, 0.3]) * np.sin(3 * V[:, :1])  # curved, so the faces' frames differ
+    monkeypatch.setattr(ssp, "_POINTS_PER_SLICE", 1 << 40)
+    monkeypatch.setattr(ssp, "_TEXELS_PER_SLICE", 1 << 40)
+    whole = {channels: (signal_metric_tensors(V, F, uv, texture, channels=channels),
+                        ssp_targets(V, F, uv, texture, channels=channels)) for channels in ("all", "luma")}
+    monkeypatch.setattr(ssp, "_POINTS_PER_SLICE", 256)
+    monkeypatch.setattr(ssp, "_TEXELS_PER_SLICE", 640)
+    for channels, (metric, targets) in whole.items():
+        steps, sliced = _steps(iter_signal_metric_tensors(V, F, uv, texture, channels=channels))
+        np.testing.assert_array_equal(sliced, metric)
+        assert steps[:8] == [(0, 288)] * 8  # one per band of 10 rows, before the integration
+        done = [item[0] for item in steps[8:]]
+        assert len(done) > 10 and done == sorted(done) and done[-1] == 288
+        steps, sliced = _steps(iter_ssp_targets(V, F, uv, texture, channels=channels))
+        assert len(steps) > 10
+        for got, expected in zip(sliced, targets):
+            np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(ssp_targets(V, F, uv, texture, channels=channels)[0], targets[0], rtol=0,
+                                   atol=1e-12)
+    # A precomputed metric leaves nothing to integrate: the generator returns without yielding.
+    steps, given = _steps(iter_ssp_targets(V, F, uv, metric=whole["all"][0]))
+    assert steps == []
+    np.testing.assert_allclose(given[0], whole["all"][1][0], rtol=0, atol=1e-12)
+
+
+def test_generator_forms_check_their_input_like_the_one_call_forms():
+    with pytest.raises(ValueError, match="NaN"):
+        run_generator(iter_ssp_targets(*_flat(TRIANGLE, 1.0), TRIANGLE, np.full((4, 4), np.nan)))
+    with pytest.raises(ValueError, match="needs a texture"):
+        run_generator(iter_ssp_targets(*_flat(TRIANGLE, 1.0), TRIANGLE))
 
 
 # --- the bundled spot model -----------------------------------------------------------------------------------

@@ -1,4 +1,8 @@
 """Stages as generators that hand control back while worker processes compute (no long step in Blender)."""
+import multiprocessing
+import threading
+import time
+
 import numpy as np
 
 from perceptual_uv.core import trianglewise as tw
@@ -71,3 +75,46 @@ def test_fit_charts_drives_a_generator_measure_to_the_same_result():
     np.testing.assert_array_equal(stepwise.losses, plain.losses)
     total = steps[-1][1]
     assert steps[-1][0] == total and len(steps) > 2 * 5  # the measurements' steps came through
+
+
+def _held_pool_start(monkeypatch):
+    """Make :func:`trianglewise._make_pool` wait until the returned event is set: a stage that blocked on the
+    start instead of handing control back would fail here (the wait runs out) rather than hang."""
+    release = threading.Event()
+    make_pool = tw._make_pool
+
+    def held(workers, state):
+        assert release.wait(60), "the stage did not hand control back while its worker pool started"
+        return make_pool(workers, state)
+
+    monkeypatch.setattr(tw, "_make_pool", held)
+    return release
+
+
+def test_the_stage_hands_control_back_while_its_worker_pool_starts(monkeypatch):
+    V, F, uv = grid_mesh()
+    release = _held_pool_start(monkeypatch)
+    stage = tw.iter_optimize_triangles(V, F, uv, texture(), evaluations=10, workers=2, chunk_size=4)
+    assert next(stage) == (0, 8)  # before the pool starts
+    for _ in range(3):  # the pool is still starting: the same count again, every WAIT_SECONDS
+        assert next(stage) == (0, 8)
+    release.set()
+    result = run_generator(stage)
+    serial = tw.optimize_triangles(V, F, uv, texture(), evaluations=10, workers=1)
+    np.testing.assert_array_equal(result.params, serial.params)
+    np.testing.assert_array_equal(result.loss, serial.loss)
+
+
+def test_closing_the_stage_while_its_worker_pool_starts_stops_the_workers(monkeypatch):
+    V, F, uv = grid_mesh()
+    release = _held_pool_start(monkeypatch)
+    before = set(multiprocessing.active_children())
+    stage = tw.iter_losses_at(V, F, uv, texture(), 0.5 + 0.6 * (uv - 0.5), workers=2, chunk_size=2)
+    next(stage)
+    next(stage)
+    stage.close()  # returns at once; the workers are stopped once they are up
+    release.set()
+    deadline = time.monotonic() + 60
+    while set(multiprocessing.active_children()) - before and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not set(multiprocessing.active_children()) - before

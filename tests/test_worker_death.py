@@ -19,8 +19,9 @@ def test_killed_worker_gives_a_clear_error():
     luma = np.random.default_rng(0).random((64, 64))
     stage = iter_optimize_triangles(V, F, V[F][:, :, :2], luma, evaluations=20, screen_pixels=32, workers=2,
                                     chunk_size=4)
-    next(stage)
-    next(stage)
+    done = 0
+    while done == 0:  # the pool starts in the background: step until a chunk has come back from it
+        done, _ = next(stage)
     workers = multiprocessing.active_children()
     assert workers, "the stage should run in worker processes"
     os.kill(workers[0].pid, signal.SIGKILL)
