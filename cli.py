@@ -11,6 +11,7 @@ import argparse
 import os
 import pathlib
 import sys
+import threading
 
 PROG = "perceptual_uv"
 
@@ -227,7 +228,13 @@ def _run(args):
     return evaluate_file(args)
 
 
+# Set by SIGTERM/SIGINT: a KeyboardInterrupt raised while numba compiles a kernel can be swallowed by the
+# compiler, so the run also checks this between steps (``args.interrupted``) and cancels there.
+_INTERRUPTED = threading.Event()
+
+
 def _interrupt(signum, frame):
+    _INTERRUPTED.set()
     raise KeyboardInterrupt
 
 
@@ -255,13 +262,15 @@ def _write_traceback(error):
 def main(argv=None):
     """Run the CLI; returns the process exit code."""
     import signal
-    import threading
 
     argv = sys.argv[1:] if argv is None else list(argv)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _interrupt)  # a batch system's stop cleans up like Ctrl-C
+        signal.signal(signal.SIGINT, _interrupt)
+    _INTERRUPTED.clear()
     try:
         args = parse_args(argv)
+        args.interrupted = _INTERRUPTED
         result = _run(args)
         if args.command == "batch":
             return result  # 0: every asset has its output; 1: some failed or were bad inputs (the summary lists them)

@@ -150,6 +150,8 @@ def optimize_file(args):
         with _ProgressLines() as lines:
             while True:
                 progress: Progress = next(pipeline)
+                if getattr(args, "interrupted", None) is not None and args.interrupted.is_set():
+                    raise KeyboardInterrupt  # a signal whose KeyboardInterrupt a numba compile swallowed
                 lines.update(progress)
     except StopIteration as finished:
         result = finished.value

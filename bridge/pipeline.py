@@ -494,8 +494,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         # first map's (the loss image's). With the texel cost (Eq. 20-21) the packing sets the side.
         by_memory = settings.resolution is None and settings.cost_measure == "memory"
         sides = [_memory_side(record, settings) for record in records] if by_memory else None
-        packing = _pack(mesh.uv, uv_fit, meshwise.topology.face_chart, (width, height), settings,
-                        resolution=sides[0] if by_memory else None)
+        packing = yield from _pack(mesh.uv, uv_fit, meshwise.topology.face_chart, (width, height), settings,
+                                   step, resolution=sides[0] if by_memory else None)
         # What the UV map stores (float32), so the report's figures are those of the saved map.
         uv_out = packing.uv.astype(np.float32).astype(np.float64)
         resolution, coverage = packing.resolution, texel_cost.uv_area(uv_out)
@@ -640,24 +640,34 @@ def _memory_side(record, settings):
     return memory_resolution(record.image.size, settings.target_cost if override is None else override)
 
 
-def _pack(uv_in, uv_fit, face_chart, input_size, settings, *, resolution=None):
-    """Pack the fitted charts on the new image's pixel grid (``core.packing``); the image side follows.
+def _pack(uv_in, uv_fit, face_chart, input_size, settings, step, *, resolution=None):
+    """Generator: pack the fitted charts on the new image's pixel grid (``core.packing``), yielding ``step``'s
+    "pack" step after each try; returns the packing. The image side follows.
 
     With a target texel cost the charts keep the texel density that meets it (Eq. 20-21: ``d^2`` texels per unit
     of fitted UV area), and the image is as large as their packing; with an explicit resolution
     (``settings.resolution``, else ``resolution``: the side the image memory gives) they fill it.
     """
-    from ..core.packing import pack_charts
+    from ..core.packing import iter_pack_charts
+
+    def packed(**size):
+        stage = iter_pack_charts(uv_fit, face_chart, margin=settings.margin, **size)
+        while True:
+            try:
+                next(stage)
+            except StopIteration as finished:
+                return finished.value
+            yield step("pack", 0, 1, "Packing islands")
 
     if settings.resolution is not None:
         resolution = settings.resolution
     if resolution is not None:
-        return pack_charts(uv_fit, face_chart, margin=settings.margin, resolution=resolution)
+        return (yield from packed(resolution=resolution))
     reference = texel_cost.texel_cost(uv_in, input_size)
     density = np.sqrt(settings.target_cost * reference / texel_cost.uv_area(uv_fit))
-    packing = pack_charts(uv_fit, face_chart, margin=settings.margin, texels_per_unit=density)
+    packing = yield from packed(texels_per_unit=density)
     if packing.resolution < MIN_RESOLUTION:
-        packing = pack_charts(uv_fit, face_chart, margin=settings.margin, resolution=MIN_RESOLUTION)
+        packing = yield from packed(resolution=MIN_RESOLUTION)
     return packing
 
 

@@ -9,6 +9,10 @@ is at least the margin in pixels of the final image, and nothing rotates by othe
 The texel density is what the cost fixes (Eq. 20-21): at ``d`` pixels per unit of the fitted UV map, a chart
 of fitted area ``a`` covers ``d^2 a`` texels whatever the image size, so the image side is simply the side of
 that square. With an explicit resolution the density is searched instead.
+
+:func:`iter_pack_charts` is the same packing as a generator that hands control back after each chart's bitmaps
+and each try (a square side or a density), so that the Blender operator driving the pipeline stays responsive
+while many charts or a density search take seconds.
 """
 import dataclasses
 
@@ -16,8 +20,9 @@ import numpy as np
 
 from ._jit import njit
 from .charts import signed_uv_areas
+from .progress import run_generator
 
-__all__ = ["Packing", "pack_charts"]
+__all__ = ["Packing", "pack_charts", "iter_pack_charts"]
 
 _MAX_SIDE = 16384
 
@@ -50,6 +55,22 @@ class Packing:
 
 def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None):
     """Pack the charts of ``uv`` with translations and quarter turns into one square image.
+
+    :func:`iter_pack_charts` run to its end; see it for the parameters.
+
+    Returns
+    -------
+    Packing
+    """
+    return run_generator(iter_pack_charts(uv, face_chart, margin=margin, texels_per_unit=texels_per_unit,
+                                          resolution=resolution))
+
+
+def iter_pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None):
+    """Generator: pack the charts of ``uv`` with translations and quarter turns into one square image.
+
+    Yields None after each chart's bitmaps and after each try; returns the :class:`Packing` (through
+    ``StopIteration.value``, as ``yield from`` gives it).
 
     Parameters
     ----------
@@ -97,10 +118,11 @@ def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None
     if texels_per_unit is not None:
         if not texels_per_unit > 0:
             raise ValueError(f"texels_per_unit must be positive, got {texels_per_unit}")
-        return _pack_at(uv, face_chart, len(charts), float(texels_per_unit), int(margin), max_side=None)
+        return (yield from _pack_at(uv, face_chart, len(charts), float(texels_per_unit), int(margin),
+                                    max_side=None))
     if not 1 <= resolution <= _MAX_SIDE:
         raise ValueError(f"resolution must be in [1, {_MAX_SIDE}], got {resolution}")
-    return _pack_into(uv, face_chart, len(charts), int(resolution), int(margin), area)
+    return (yield from _pack_into(uv, face_chart, len(charts), int(resolution), int(margin), area))
 
 
 def _pack_into(uv, face_chart, count, resolution, margin, area):
@@ -112,20 +134,20 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
     Its layout is then scaled up until the charts reach the far border but for half a margin (every gap grows
     with it).
     """
-    def attempt(density):
-        return _pack_at(uv, face_chart, count, density, margin, max_side=resolution)
+    def attempt(density):  # a generator: each try hands control back
+        return (yield from _pack_at(uv, face_chart, count, density, margin, max_side=resolution))
 
     density = resolution * np.sqrt(0.6 / area)
-    best = attempt(density)
+    best = yield from attempt(density)
     too_dense = None
     for _ in range(100):
         if best is None:  # shrink until a try fits
             too_dense, density = density, density / 1.05
-            best = attempt(density)
+            best = yield from attempt(density)
             continue
         if too_dense is not None:
             break
-        larger = attempt(density * 1.05)  # grow until a try does not fit
+        larger = yield from attempt(density * 1.05)  # grow until a try does not fit
         if larger is None:
             too_dense = density * 1.05
         else:
@@ -136,7 +158,7 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
         candidate = too_dense / 1.01 ** step
         if candidate <= density:
             break
-        finer = attempt(candidate)
+        finer = yield from attempt(candidate)
         if finer is not None:
             best = finer
             break
@@ -151,7 +173,8 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
 
 
 def _pack_at(uv, face_chart, count, density, margin, *, max_side):
-    """Pack at ``density`` into the smallest square found, or into ``max_side`` (None if the charts do not fit)."""
+    """Generator: pack at ``density`` into the smallest square found, or into ``max_side`` (None if the charts do
+    not fit); yields after each chart's bitmaps and each square tried."""
     grow = (margin + 1) // 2
     order = np.argsort(face_chart, kind="stable")
     starts = np.searchsorted(face_chart[order], np.arange(count + 1))
@@ -176,6 +199,7 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
             turns.append((grid, origin))
         bitmaps.append(turns)
         total += int(turns[0][0].sum())
+        yield
     sizes = np.array([bitmaps[c][0][0].sum() for c in range(count)])
     chart_order = np.argsort(-sizes, kind="stable")
     narrowest = max(min(grid.shape) for grid, _ in (turns[0] for turns in bitmaps))
@@ -188,10 +212,11 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
 
     if max_side is not None:
         best = square(max_side)
+        yield
         if best is None:
             return None
     else:
-        best = _smallest_square(square, max(narrowest, int(np.ceil(np.sqrt(total)))))
+        best = yield from _smallest_square(square, max(narrowest, int(np.ceil(np.sqrt(total)))))
         if best is None:
             raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
                              "unit; lower the target cost or set an explicit resolution")
@@ -208,19 +233,23 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
 
 
 def _smallest_square(square, start):
-    """The smallest side found for which ``square(side)`` fits: 5 % steps from ``start`` until one side fits
-    and the one below does not, then 1 % steps up from that one (fitting is not monotonic in the side)."""
+    """Generator: the smallest side found for which ``square(side)`` fits: 5 % steps from ``start`` until one
+    side fits and the one below does not, then 1 % steps up from that one (fitting is not monotonic in the
+    side); yields after each side tried."""
     side, best, too_small = start, square(start), None
+    yield
     for _ in range(200):
         if best is None:  # grow until a side fits
             too_small, side = side, max(side + 1, int(np.ceil(side * 1.05)))
             if side > _MAX_SIDE:
                 return None
             best = square(side)
+            yield
             continue
         if too_small is not None:
             break
         smaller = square(min(side - 1, int(side / 1.05)))  # shrink until a side does not fit
+        yield
         if smaller is None:
             too_small = min(side - 1, int(side / 1.05))
         else:
@@ -230,6 +259,7 @@ def _smallest_square(square, start):
         if candidate >= side:
             break
         finer = square(candidate)
+        yield
         if finer is not None:
             return finer
     return best

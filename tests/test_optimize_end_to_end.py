@@ -149,8 +149,8 @@ def test_cancel_leaves_nothing(registered, spot_obj, stages):
 
 def test_reading_and_signal_stretch_hand_control_back_step_by_step(registered, spot_obj):
     """Driven one step at a time as the modal operator drives it, the run reads in several parts, builds the
-    loss's planes a band of texture rows per step and measures the texture's signal stretch a slice of faces per
-    step, counting up to every face."""
+    loss's planes a band of texture rows per step, measures the texture's signal stretch a slice of faces per
+    step, counting up to every face, and packs a chart's bitmaps or a try per step."""
     import re
 
     obj = spot_patch(spot_obj, above=1.0)
@@ -166,6 +166,9 @@ def test_reading_and_signal_stretch_hand_control_back_step_by_step(registered, s
     done = [int(match[1]) for match in signal]
     assert len(signal) > 2 and done == sorted(done) and done[0] < done[-1] == int(signal[-1][2])
     assert len(obj.data.polygons) == done[-1]  # every face of the patch has surface area
+    # One step before packing, then one per chart's bitmaps and per try (at least the patch's one chart and one
+    # strip at each of the two densities the image-memory cost's fixed side needs).
+    assert sum(stage == "pack" for stage, _ in steps) >= 1 + 2 * 2
 
 
 def test_the_largest_view_reaches_both_triangle_wise_calls(registered, spot_obj, monkeypatch):

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from perceptual_uv.core.packing import pack_charts
+from perceptual_uv.core.packing import iter_pack_charts, pack_charts
 
 QUARTER_TURNS = [np.eye(2), np.array([[0, -1], [1, 0]]), -np.eye(2), np.array([[0, 1], [-1, 0]])]
 
@@ -148,3 +148,24 @@ def test_bad_input_is_refused():
         pack_charts(uv, face_chart + 1, margin=0, texels_per_unit=8)
     with pytest.raises(ValueError, match="larger than 16384"):
         pack_charts(uv, face_chart, margin=0, texels_per_unit=20000)
+
+
+def test_the_generator_hands_control_back_after_each_chart_and_each_try():
+    # Five charts at one density: five bitmaps (a yield each) and at least one strip tried; with an explicit
+    # resolution every density tried repeats the five bitmaps and one strip, and at least two densities are
+    # tried (one that fits, one 5 % denser that does not). Either way the result is pack_charts'.
+    uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 2), (0, 5, 2, 1), (7, 7, 1, 1), (9, 9, 0.5, 0.5)])
+    for size in ({"texels_per_unit": 8}, {"resolution": 64}):
+        stage = iter_pack_charts(uv, face_chart, margin=2, **size)
+        yields = 0
+        while True:
+            try:
+                assert next(stage) is None
+                yields += 1
+            except StopIteration as finished:
+                packing = finished.value
+                break
+        assert yields >= (6 if "texels_per_unit" in size else 12)
+        expected = pack_charts(uv, face_chart, margin=2, **size)
+        np.testing.assert_array_equal(packing.uv, expected.uv)
+        assert packing.resolution == expected.resolution
