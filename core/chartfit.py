@@ -210,13 +210,11 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
 
     Notes
     -----
-    Measured on the ten models of docs/results (q_r at c_r = 0.3, 512 px, 20 views, the same triangle-wise
-    results): one fit without rotation terms gives CesiumMan 2.42e-3 and the bookshelf 2.71e-2, one with them
-    1.66e-3 and 2.63e-2 but bob 1.62e-3 instead of 6.97e-4; this stage gives 1.37e-3, 2.09e-2 and 6.84e-4.
-    A chart that folds keeps its input layout in either fit, and a fit that folds a chart over itself more than
-    the other fit, below the restore tolerance, still shares texels there, which E (one triangle at a time)
-    cannot see: on the nearly flat YcbBanana, without this check q_r stops falling with the cost (8.2e-5 at
-    c_r = 0.5 against 5.4e-5 with it, which keeps three charts from the fit with rotation terms).
+    Neither fit is better on every model: rotation terms help where a chart's triangles agree on an angle and
+    cost where they disagree, so each chart chooses (figures in docs/DECISIONS.md). A chart that folds keeps its
+    input layout in either fit, and a fit that folds a chart over itself more than the other fit, below the
+    restore tolerance, still shares texels there, which E (one triangle at a time) cannot see; the check keeps
+    the other fit for such a chart.
 
     References
     ----------

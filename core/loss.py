@@ -34,10 +34,9 @@ about ``T * W^2`` for ``T`` touched texels in a footprint ``W`` texels wide, so 
 about the size of a screen pixel (several thousand texels in view) cost 5-15 ms near the identity; wide
 footprints are factorized in nested-dissection order instead (:data:`.loss_stack.DISSECTION_COST`,
 :mod:`.multifrontal`; about ``T^{3/2}``). Preparation: 0.4-0.9 ms per triangle. The per-triangle cache holds
-arrays only (picklable; the numba kernels are module functions), ~165 KB per triangle at 64 px. Those figures
-predate the window faces (step 2): a sliver's view now holds the panel around it instead of a thin line, so it
-costs like a well-shaped triangle's of the same window; the whole triangle-wise stage on wooden_bookshelf
-(2 workers) went from 131 s to 499 s, on spot it stayed at about 30 s.
+arrays only (picklable; the numba kernels are module functions), ~165 KB per triangle at 64 px. With the
+window faces (step 2) a sliver's view holds the panel around it instead of a thin line, so it costs like a
+well-shaped triangle's of the same window.
 
 A material's maps: every function here that takes ``luma`` also takes a stack of scalar planes, each at its
 own resolution (:func:`.loss_planes.loss_planes` builds them: colour through luma, data per channel,

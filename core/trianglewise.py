@@ -457,37 +457,15 @@ class TrianglewiseResult:
         -----
         App. A's view is at least 64 px wide whatever the triangle's size in texels, so a triangle a few texels
         wide is seen magnified, where bilinear lookups make its texture smooth and the optimum can sit at the box
-        floor with a fraction of a texel (tea_set: 55 % of the faces, a median of 0.06 texels); the floor,
-        stated in texels and applied to textured triangles only, gives them texels of their own. Tuned on all
-        ten models, it was measured again under the tuning/validation split: without it q_r is 1.02 times that
-        with it on the validation models (bob, BoomBox, YcbBanana, the sofa; 0.82 to 1.30 per point), and
-        YcbBanana and the sofa lose pixel saving (YcbBanana no longer reaches the input's q_r at c_r = 0.5), so
-        it is kept. It is not what takes targets past epsilon: the blend below is (docs/results/README.md, "The
-        bound"). Per-model figures in docs/DECISIONS.md.
+        floor with a fraction of a texel; the floor, stated in texels and applied to textured triangles only,
+        gives them texels of their own. It is not what takes targets past epsilon: the blend is.
 
-        The blend with signal stretch: App. A's optimum is one noisy estimate of the texels a triangle needs
-        (Bayesian optimization with 100 evaluations: q_r moves up to 20 % with the seed on spot), made at the
-        magnification of a 64 px view rather than at the density the whole model is seen at; SSP's expected
-        stretch (Sander et al. 2002) is another, from the texture's gradients over the surface alone. Their
-        geometric mean ranks the triangles better than the stage's own areas on 8 of the 10 models of
-        docs/results, q_r at c_r = 0.2 / 0.3 / 0.5 (512 px, 20 views), ``signal_weight`` 0 -> 0.5:
-
-        ===========  =============================  =============================
-        model        0                              0.5
-        ===========  =============================  =============================
-        sofa         1.49e-2 / 1.12e-2 / 7.85e-3    9.30e-3 / 6.52e-3 / 4.70e-3
-        WaterBottle  3.41e-3 / 2.45e-3 / 1.70e-3    2.56e-3 / 1.70e-3 / 1.03e-3
-        spot         7.50e-4 / 4.15e-4 / 1.82e-4    5.90e-4 / 3.20e-4 / 1.59e-4
-        tea_set      1.10e-3 / 7.33e-4 / 4.28e-4    1.03e-3 / 6.60e-4 / 3.92e-4
-        BoomBox      5.33e-3 / 3.54e-3 / 1.85e-3    5.17e-3 / 3.31e-3 / 1.84e-3
-        bob          1.24e-3 / 7.53e-4 / 3.98e-4    1.18e-3 / 6.97e-4 / 3.75e-4
-        CesiumMan    3.87e-3 / 2.32e-3 / 1.31e-3    3.96e-3 / 2.42e-3 / 1.34e-3
-        YcbBanana    9.74e-5 / 7.06e-5 / 5.03e-5    1.05e-4 / 7.50e-5 / 5.38e-5
-        ===========  =============================  =============================
-
-        (Avocado and the bookshelf gain 2-19 %.) A weight of 0.7 helps the sofa and WaterBottle further
-        (5.90e-3 and 1.42e-3 at c_r = 0.3) but costs CesiumMan, bob, Avocado and YcbBanana (mean pixel saving
-        0.262 against 0.265); the blend without the texel floor loses on spot (4.42e-4) and tea_set (7.54e-4).
+        The blend with signal stretch: App. A's optimum is one noisy estimate of the texels a triangle needs (100
+        evaluations of Bayesian optimization), made at the magnification of a 64 px view rather than at the
+        density the whole model is seen at; SSP's expected stretch (Sander et al. 2002) is another, from the
+        texture's gradients over the surface alone, and their geometric mean ranks the triangles better. Both
+        constants were measured on the ten shared models and kept under the tuning/validation split: the figures
+        are in docs/DECISIONS.md and docs/research.
 
         References
         ----------
