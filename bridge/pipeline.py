@@ -463,9 +463,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         clock = time.perf_counter()
         stage = iter_ssp_targets(V, F, uv_in, texture)
         signal, _, _ = yield from _relay(stage, "mesh", "Measuring the texture's signal stretch", clock, step)
-        yield step("mesh", 0, 1, "Setting the mesh-wise fit's targets")
         # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
-        targets = triangles.fit_targets(uv_in, planes, signal_targets=signal)
+        stage = triangles.iter_fit_targets(uv_in, planes, signal_targets=signal)
+        targets = yield from _relay(stage, "mesh", "Setting the mesh-wise fit's targets", time.perf_counter(), step)
         params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
         stage = iter_losses_of(V, F, uv_in, planes, targets, screen_pixels=settings.screen_pixels,
                                max_screen_pixels=settings.max_screen_pixels, faces=faces, workers=settings.workers,

@@ -109,6 +109,9 @@ LAMBDA_MIN = 0.1
 _IDENTITY = np.array([0.0, 1.0, 1.0, 0.0])
 _IDENTITY.setflags(write=False)  # shared by every call: a write would change every later triangle's start
 MAX_SCREEN_PIXELS = 256
+# Faces whose texels :meth:`TrianglewiseResult.iter_fit_targets` tests between two yields (a few hundredths of
+# a second on a 2k texture).
+TARGET_SLICE = 2048
 # Longest wait for worker results before a stage's generator hands control back (the modal operator's tick).
 WAIT_SECONDS = 0.1
 DASK_CONNECT_SECONDS = 30
@@ -424,9 +427,22 @@ class TrianglewiseResult:
             object.__setattr__(self, "unevaluated", np.zeros(len(self.faces), dtype=bool))
 
     def fit_targets(self, uv, luma, *, min_texels=MIN_TEXELS, signal_targets=None, signal_weight=SIGNAL_WEIGHT):
-        """Targets for the mesh-wise fit: :attr:`params` with no stretch of a textured triangle below the texel
-        floor ``lambda >= sqrt(min_texels / A)``, ``A`` its input area in texels (at most 1), and, given signal
-        stretch's targets, each textured triangle's target area drawn towards the area signal stretch gives it.
+        """Targets for the mesh-wise fit (:meth:`iter_fit_targets` run to its end; see it for the parameters).
+
+        Returns
+        -------
+        (k, 4) float64 ndarray
+        """
+        return run_generator(self.iter_fit_targets(uv, luma, min_texels=min_texels, signal_targets=signal_targets,
+                                                   signal_weight=signal_weight))
+
+    def iter_fit_targets(self, uv, luma, *, min_texels=MIN_TEXELS, signal_targets=None,
+                         signal_weight=SIGNAL_WEIGHT):
+        """Generator: targets for the mesh-wise fit: :attr:`params` with no stretch of a textured triangle below
+        the texel floor ``lambda >= sqrt(min_texels / A)``, ``A`` its input area in texels (at most 1), and, given
+        signal stretch's targets, each textured triangle's target area drawn towards the area signal stretch
+        gives it. Yields ``(done, total)`` after each slice of :data:`TARGET_SLICE` faces whose texels it tested
+        (:func:`.loss.textured_triangles`); returns the targets.
 
         Parameters
         ----------
@@ -491,11 +507,21 @@ class TrianglewiseResult:
         if min_texels == 0 and not blend:
             return params
         uv = uv[self.faces]
+        total = len(uv) * len(planes)
+
+        def textured_in(plane, number):  # a generator: a slice of faces at a time
+            own = np.zeros(len(uv), dtype=bool)
+            for start in range(0, len(uv), TARGET_SLICE):
+                own[start:start + TARGET_SLICE] = textured_triangles(uv[start:start + TARGET_SLICE], plane)
+                yield number * len(uv) + min(len(uv), start + TARGET_SLICE), total
+            return own
+
         area = texel_areas(uv, planes[0].shape[1], planes[0].shape[0])
-        textured = textured_triangles(uv, planes[0])
-        for plane in planes[1:]:
+        textured = yield from textured_in(planes[0], 0)
+        for number, plane in enumerate(planes[1:], start=1):
             # A stack: the floor counts texels of the densest plane in which the triangle is textured.
-            own, own_area = textured_triangles(uv, plane), texel_areas(uv, plane.shape[1], plane.shape[0])
+            own = yield from textured_in(plane, number)
+            own_area = texel_areas(uv, plane.shape[1], plane.shape[0])
             area = np.where(own & (~textured | (own_area > area)), own_area, area)
             textured |= own
         textured &= ~self.unevaluated

@@ -366,6 +366,26 @@ def test_fit_targets_raise_the_stretches_of_textured_triangles_to_the_texel_floo
         subset.fit_targets(uv[:2], texture)
 
 
+def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
+    # The four triangles of the texel-floor test, slices of 3 faces: two slices, (3, 4) then (4, 4), and the
+    # floored targets of the test above; with a second plane two more steps count up to 8.
+    texture, uv, params, result = _hand_placed_targets()
+    monkeypatch.setattr(tw, "TARGET_SLICE", 3)
+    stage = result.iter_fit_targets(uv, texture, min_texels=2.0)
+    steps = []
+    while True:
+        try:
+            steps.append(next(stage))
+        except StopIteration as finished:
+            targets = finished.value
+            break
+    assert steps == [(3, 4), (4, 4)]
+    np.testing.assert_allclose(targets, [[0.3, 0.5, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 1.0, 1.0, 0.0],
+                                         [0.1, 0.6, 0.9, 0.4]], rtol=1e-12)
+    steps = list(result.iter_fit_targets(uv, [texture, texture], min_texels=2.0))
+    assert steps == [(3, 8), (4, 8), (7, 8), (8, 8)]
+
+
 def test_fit_targets_draw_textured_areas_towards_signal_stretch_geometrically():
     """The triangles of the texel-floor test, no floor. Own areas a = lambda1 lambda2: 0.05, (flat), 0.03, 0.54;
     signal-stretch areas b: 0.04, (flat), 0.01, 0.18. a / b over the textured rows: 1.25, 3, 3, median s = 3,
