@@ -183,6 +183,10 @@ def build_parser():
     evaluate.add_argument("--costs", type=_costs, default=[0.1, 0.2, 0.3, 0.5])
     evaluate.add_argument("--json", type=pathlib.Path, help="write the results here")
     evaluate.add_argument("--plot", type=pathlib.Path, help="write a q_r-c_r plot (PNG) here")
+    evaluate.add_argument("--shaded", action="store_true",
+                          help="render the whole material (every map re-baked) under fixed lights with Cycles "
+                               "instead of the base colour alone, and report q_r per map")
+    evaluate.add_argument("--screen", type=int, default=512, help="side of each of the 20 views (default 512)")
     return parser
 
 
@@ -196,6 +200,8 @@ def _validate(args):
             raise UsageError("--workers sets the local cluster's size; the cluster at --scheduler has its own workers")
         if args.dask_workers is not None and args.dask_workers < 1:
             raise UsageError(f"--workers must be 1 or more, not {args.dask_workers}")
+    if args.command == "evaluate" and not 16 <= args.screen <= 4096:
+        raise UsageError(f"--screen must be in [16, 4096], not {args.screen}")
     if args.command in ("optimize", "batch"):
         try:
             args.settings = OptimizeSettings(

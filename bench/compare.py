@@ -6,7 +6,7 @@ Usage (from /work, the repo's parent folder)::
     main/.venv/bin/python -m perceptual_uv.bench.compare --models shared/models --costs 0.1,0.2,0.3,0.5 \\
         --out main/docs/results [--evaluations 100] [--epsilons 0.005,0.02] [--methods input,repacked,...] \\
         [--screen 512] [--workers 0] [--cache DIR | --no-cache] [--reuse input,repacked,...] \\
-        [--triangles CACHE_DIR]
+        [--triangles CACHE_DIR] [--shaded]
     main/.venv/bin/python -m perceptual_uv.bench.compare --summary main/docs/results
 
 Per model: ``<model>_q_vs_c.png``, ``<model>.md``, ``<model>.json`` and ``<model>_crops_c030.png``;
@@ -24,6 +24,13 @@ this run's costs, same screen) whatever the code; the JSON and the table name th
 ``--triangles`` keeps each model's triangle-wise result in a folder (``bridge.baselines.triangle_targets``), so
 that a change to the mesh-wise stage or the packing is measured without that stage again; t_triangle is then
 the time of the run that wrote it.
+
+``--shaded`` evaluates every method in the shaded mode (``bridge.evaluate_shaded``): every map re-baked, the
+whole material rendered by Cycles under fixed lights, q_r per map too, plotted against the maps' image memory;
+the files are ``<model>_shaded.*`` (use their own ``--out`` folder, so the summary stays per mode). Its method
+``downscale`` is the input UV map with every map resized to the cost's share of its own pixels (what
+``gltfpack -ts`` and ``gltf-transform resize`` do), through the same bake as every other method; in the flat mode,
+which sees the base colour only, it would be the input, so it is shaded-only.
 """
 
 import argparse
@@ -38,7 +45,11 @@ import numpy as np
 
 METHODS = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSP", "SSPOP", "ours",
            "ours_rotation", "ours_common", "ours_identity", "paper", "ours_no_texel_floor", "ours_no_signal_blend",
-           "ours_no_weight_floor", "ours_no_fold_restore")
+           "ours_no_weight_floor", "ours_no_fold_restore", "downscale")
+SHADED_ONLY = ("downscale",)
+"""Methods measured only with ``--shaded`` (see the module docstring)."""
+SIZING = {"downscale": "memory"}
+"""How ``bridge.evaluate_shaded`` sizes each method's maps (``texels`` otherwise)."""
 BASELINES = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSPOP")
 """The methods the issue's target says ours must beat at c_r = 0.2, 0.3 and 0.5."""
 MODEL_SUFFIXES = (".glb", ".gltf", ".obj", ".blend")
@@ -78,6 +89,7 @@ METHOD_SOURCES = {
     "SSP": _FINISHED + ("core.ssp", "bridge.baselines:ssp_uv"),
     "SSPOP": _FINISHED + ("core.ssp", "bridge.baselines:sspop_uv"),
     **{m: _OURS for m in OURS_VARIANTS},
+    "downscale": ("bench.compare:SIZING",),
 }
 """The code each method's result depends on, for its cache key (:func:`method_key`), besides the evaluation
 (:data:`EVALUATION_SOURCES`). ``"core.ssp"`` is that module and the modules of this package it imports, followed
@@ -86,6 +98,8 @@ that a change to one method there does not recompute the others. ``ours_eps<epsi
 does; a method not listed (a new one) depends on every module of core/ and bridge/ and on this file."""
 EVALUATION_SOURCES = ("bridge.evaluate", "bridge.mesh_io", "bridge.material", "bridge.batch:textured_objects")
 """What every method's result depends on: the import of the model, the renders, the bakes and q_r."""
+SHADED_SOURCES = ("bridge.evaluate_shaded",)
+"""What every method's result depends on in addition with ``--shaded`` (the whole-material bake, the copies)."""
 KEPT_MAPS = ("ours",)
 """Methods whose UV map is cached with their result: the crops and the pixel saving need it."""
 _HUBS = ("bridge.baselines", "bench.compare")
@@ -141,7 +155,7 @@ class UVMaps:
 
         objects, source = self.objects, self.source
         start = time.perf_counter()
-        name = {"input": source, "repacked": "Repacked"}.get(method, method)
+        name = {"input": source, "downscale": source, "repacked": "Repacked"}.get(method, method)
         report = {}
         if method == "repacked":
             report = baselines.repacked_input(objects, source_uv=source, name=name)
@@ -151,7 +165,7 @@ class UVMaps:
             report = baselines.ssp_uv(objects, source_uv=source, name=name)
         elif method == "SSPOP":
             report = baselines.sspop_uv(objects, source_uv=source, name=name)
-        elif method != "input":
+        elif method not in ("input", "downscale"):  # downscale re-bakes the input UV map (SIZING)
             eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else self.epsilon
             triangles = self.triangles(eps, method)
             start = time.perf_counter()  # the triangle-wise time is reported on its own
@@ -229,15 +243,16 @@ def code_hash(sources, package=_PACKAGE):
     return hashlib.sha256("\n".join(sorted(texts)).encode()).hexdigest()
 
 
-def method_sources(method):
-    """The sources a method's result depends on (:data:`METHOD_SOURCES` and :data:`EVALUATION_SOURCES`)."""
+def method_sources(method, shaded=False):
+    """The sources a method's result depends on (:data:`METHOD_SOURCES` and :data:`EVALUATION_SOURCES`, and
+    :data:`SHADED_SOURCES` when ``shaded``)."""
     if method.startswith("ours_eps"):
         method = "ours"
     if method not in METHOD_SOURCES:
         every = sorted(".".join(f.relative_to(_PACKAGE).with_suffix("").parts)
                        for folder in ("core", "bridge") for f in (_PACKAGE / folder).glob("*.py"))
         return tuple(every) + ("bench.compare",)
-    return METHOD_SOURCES[method] + EVALUATION_SOURCES
+    return METHOD_SOURCES[method] + EVALUATION_SOURCES + (SHADED_SOURCES if shaded else ())
 
 
 def model_hash(path):
@@ -252,9 +267,13 @@ def model_hash(path):
     return digest.hexdigest()
 
 
-def method_settings(method, *, costs, screen, evaluations, epsilon):
-    """The settings a method's result depends on."""
+def method_settings(method, *, costs, screen, evaluations, epsilon, shaded=False):
+    """The settings a method's result depends on (the flat mode's keys carry no ``shaded`` entry)."""
     settings = dict(costs=sorted(float(c) for c in costs), screen=int(screen))
+    if shaded:
+        from ..bridge.evaluate_shaded import SAMPLES
+
+        settings.update(shaded=True, samples=SAMPLES, sizing=SIZING.get(method, "texels"))
     if method in OURS_VARIANTS or method.startswith("ours_eps"):
         eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else float(epsilon)
         settings.update(evaluations=int(evaluations), epsilon=eps, variant=OURS_VARIANTS.get(method, {}),
@@ -272,9 +291,12 @@ class ResultCache:
     """One folder per model of per-method results, ``<folder>/<model>/<method>-<key>.json`` (see the module
     docstring); ``folder`` None keeps nothing."""
 
-    def __init__(self, folder, *, costs, screen, evaluations, epsilon):
+    def __init__(self, folder, *, costs, screen, evaluations, epsilon, shaded=False):
         self.folder = None if folder is None else pathlib.Path(folder)
         self.settings = dict(costs=costs, screen=screen, evaluations=evaluations, epsilon=epsilon)
+        self.shaded = bool(shaded)
+        if shaded:
+            self.settings["shaded"] = True
         self._code, self._models = {}, {}
 
     def key(self, path, method):
@@ -282,7 +304,7 @@ class ResultCache:
         if path not in self._models:
             self._models[path] = model_hash(path)
         if method not in self._code:
-            self._code[method] = code_hash(method_sources(method))
+            self._code[method] = code_hash(method_sources(method, self.shaded))
         return method_key(method, model=self._models[path], code=self._code[method],
                           settings=method_settings(method, **self.settings))
 
@@ -356,10 +378,10 @@ def _duration(seconds):
     return f"{seconds / 60:.0f} min" if seconds >= 90 else f"{seconds:.0f} s"
 
 
-def _pixel_saving(objects, source, names, results, reference, screen):
+def _pixel_saving(names, results, evaluate):
     """Relative cost at which ours reaches the input's q_r at c_r = 0.5; extends ours' curve downwards until it
-    crosses (at most to c_r = 1/32), so the answer is a measured crossing, not a bound."""
-    from ..bridge.evaluate import evaluate_uv_map
+    crosses (at most to c_r = 1/32), so the answer is a measured crossing, not a bound. ``evaluate(name, costs,
+    method)`` measures a UV map (the flat or the shaded mode)."""
     from ..core.evaluation import pixel_saving
 
     if "input" not in results or "ours" not in results:
@@ -374,8 +396,7 @@ def _pixel_saving(objects, source, names, results, reference, screen):
         lowest = min(p["target_cost"] for p in points)
         if saving.bracketed != "below" or lowest <= 1 / 32 or "ours" not in names:
             break
-        extra = evaluate_uv_map(objects, names["ours"], reference_uv=source, costs=(lowest / 2,),
-                                screen_pixels=screen, reference_views=reference)
+        extra = evaluate(names["ours"], (lowest / 2,), "ours")
         points.append(extra["points"][0])
         points.sort(key=lambda p: p["target_cost"])
     return dict(input_q=target[0], relative_cost=saving.relative_cost, pixel_fraction=saving.pixel_fraction,
@@ -415,8 +436,11 @@ def _previous_results(file, methods, *, costs, screen):
 
 
 def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilons, workers, out, reuse=(),
-                  triangles=None, cache=None, progress=None):
+                  triangles=None, cache=None, progress=None, shaded=False):
     """Runs every method on one model file and writes its plot, crops, markdown table and JSON; returns the table.
+
+    With ``shaded`` every method is measured by ``bridge.evaluate_shaded`` (whole material, q_r per map), the
+    files are ``<model>_shaded.*``, the plot is against the maps' image memory, and there are no crops.
 
     The methods in ``reuse`` are read from the ``<model>.json`` already in ``out`` instead of being run;
     ``triangles`` is the folder of cached triangle-wise results, if any; ``cache`` a :class:`ResultCache`
@@ -431,7 +455,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     from ..core.cost import texel_cost
     from ..core.evaluation import symmetric_dirichlet
 
-    stem = path.stem
+    stem = path.stem + ("_shaded" if shaded else "")
     reused, reused_times = _previous_results(out / f"{stem}.json", [m for m in methods if m in reuse], costs=costs,
                                              screen=screen)
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -440,9 +464,22 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     source = objects[0].data.uv_layers.active.name
     V, F, uv = mesh_arrays(objects, source)
     r_input = reference_resolution(objects)
-    reference = render_views(objects, uv_name=source, screen_pixels=screen)
+    if shaded:
+        from ..bridge.evaluate_shaded import evaluate_shaded, shaded_reference
+
+        reference = shaded_reference(objects, source, screen_pixels=screen)
+
+        def evaluate(name, method_costs, method):
+            return evaluate_shaded(objects, name, reference_uv=source, costs=method_costs, screen_pixels=screen,
+                                   reference=reference, sizing=SIZING.get(method, "texels"))
+    else:
+        reference = render_views(objects, uv_name=source, screen_pixels=screen)
+
+        def evaluate(name, method_costs, method):
+            return evaluate_uv_map(objects, name, reference_uv=source, costs=method_costs, screen_pixels=screen,
+                                   reference_views=reference)
     maps = UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers,
-                   cache=None if triangles is None else (triangles, stem))
+                   cache=None if triangles is None else (triangles, path.stem))
     names, results, cached_times, cached = {"input": source}, {}, {}, []
     # Blender keeps at most 8 UV maps per mesh: each map is evaluated as soon as it exists and then removed,
     # except the two the crops and the pixel saving need.
@@ -470,8 +507,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
             if progress:
                 progress.method(stem, method, time.perf_counter() - start, "failed")
             continue
-        results[method] = evaluate_uv_map(objects, names[method], reference_uv=source, costs=costs,
-                                          screen_pixels=screen, reference_views=reference)
+        results[method] = evaluate(names[method], costs, method)
         report = maps.reports.get(method, {})
         post = {k: v for k, v in report.items() if k.endswith("_charts")}
         if post:
@@ -490,10 +526,10 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
         if progress:
             progress.method(stem, method, time.perf_counter() - start, "measured")
         if method not in ("input", "ours"):
-            maps.remove(names.pop(method))
+            maps.remove(names.pop(method))  # the input's own map (downscale's) is never removed
     times = {**{m: t for m, t in reused_times.items() if t is not None}, **cached_times, **maps.times}
     extent = len(results["ours"]["points"]) if "ours" in results else 0
-    saving = _pixel_saving(objects, source, names, results, reference, screen)
+    saving = _pixel_saving(names, results, evaluate)
     if cache is not None and "ours" in results and len(results["ours"]["points"]) != extent and "ours" not in reused:
         # the points the pixel saving added below the costs are kept with ours' result
         entry = cache.load(path, "ours")
@@ -505,8 +541,12 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
                  screen_pixels=screen, t_triangle=times.get("triangle"), t_mesh=times.get("mesh"),
                  pixel_saving=saving, beaten_by=_wins(results), failures=failures, reused=sorted(reused),
                  cached=sorted(cached))
-    _plot(results, out / f"{stem}_q_vs_c.png", stem, screen)
-    _crops(objects, names, source, reference, out / f"{stem}_crops_c030.png", screen)
+    if shaded:
+        table["shaded"] = True
+        _plot(results, out / f"{stem}_q_vs_memory.png", stem, screen, x="memory_ratio")
+    else:
+        _plot(results, out / f"{stem}_q_vs_c.png", stem, screen)
+        _crops(objects, names, source, reference, out / f"{stem}_crops_c030.png", screen)
     (out / f"{stem}.md").write_text(_model_markdown(table, results, costs))
     (out / f"{stem}.json").write_text(json.dumps({"table": table, "times_s": times, "results": results}, indent=1))
     return (out / f"{stem}.md").read_text()
@@ -537,6 +577,15 @@ def _model_markdown(table, results, costs):
                                                    for c in costs) + f" | {res['e_iso'] / table['surface_area']:.4g} |")
     for method, reason in table.get("failures", {}).items():
         lines.append(f"| {method} | failed: {reason} |" + " |" * len(costs))
+    if table.get("shaded"):
+        lines += ["", "Shaded q_r (whole material, Cycles, fixed lights); per map q_r and the maps' image memory "
+                      "relative to the input's:", "",
+                  "| method | c_r | memory | shaded q | per map |", "|---|---|---|---|---|"]
+        for method, res in results.items():
+            for p in sorted(res["points"], key=lambda p: p["target_cost"]):
+                per_map = ", ".join(f"{m['role']} {m['q']:.3g} (r {m['resolution']})" for m in p.get("maps", []))
+                lines.append(f"| {method} | {p['target_cost']:g} | {p.get('memory_ratio') or 0:.3f} | {p['q']:.4g} | "
+                             f"{per_map} |")
     bound = {m: r["above_bound"] for m, r in results.items() if "above_bound" in r}
     if bound:
         lines += ["", f"Textured triangles with E > epsilon, at the mesh-wise fit's targets / after the fit (of "
@@ -608,7 +657,7 @@ def _saving_text(saving):
     return f"{saving['relative_cost']:.3f}" + (" (bound)" if saving["position"] == "below" else "")
 
 
-def _plot(results, file, title, screen):
+def _plot(results, file, title, screen, x="relative_cost"):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -616,12 +665,12 @@ def _plot(results, file, title, screen):
 
     fig, ax = plt.subplots(figsize=(5, 3.5), dpi=90)
     for method, res in results.items():
-        points = sorted(res["points"], key=lambda p: p["relative_cost"])
-        ax.plot([p["relative_cost"] for p in points], [p["q"] for p in points], "o-", label=method,
+        points = sorted(res["points"], key=lambda p: p[x])
+        ax.plot([p[x] for p in points], [p["q"] for p in points], "o-", label=method,
                 lw=2 if method == "ours" else 1, ms=3)
     ax.set_yscale("log")
-    ax.set_xlabel("relative cost $c_r$")
-    ax.set_ylabel(f"$q_r$ (mean GMSD, 20 views, {screen} px)")
+    ax.set_xlabel("relative cost $c_r$" if x == "relative_cost" else "image memory (relative to the input's)")
+    ax.set_ylabel(f"$q_r$ ({'shaded, ' if x == 'memory_ratio' else ''}mean GMSD, 20 views, {screen} px)")
     ax.set_title(title)
     ax.legend(fontsize=6)
     fig.tight_layout()
@@ -670,12 +719,15 @@ def main(argv=None):
     parser.add_argument("--epsilons", default="", help="extra epsilon values for ours (Fig. 18), e.g. 0.005,0.02")
     parser.add_argument("--screen", type=int, default=512)
     parser.add_argument("--workers", type=int, default=0, help="triangle-wise workers (0: one per core)")
-    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--methods", help="comma-separated (default: every method of the mode)")
     parser.add_argument("--reuse", default="", help="methods whose results are read from the <model>.json in --out")
     parser.add_argument("--cache", type=pathlib.Path, help="folder of per-method results (default: <out>/cache)")
     parser.add_argument("--no-cache", action="store_true", help="measure every method again and keep nothing")
     parser.add_argument("--triangles", type=pathlib.Path, help="folder that keeps the triangle-wise results")
     parser.add_argument("--summary", type=pathlib.Path, help="only rebuild summary.md in this folder")
+    parser.add_argument("--shaded", action="store_true",
+                        help="evaluate the whole material under fixed lights (Cycles) with q_r per map; adds the "
+                             "method downscale")
     args = parser.parse_args(argv)
     if args.summary:
         print(write_summary(args.summary))
@@ -684,16 +736,21 @@ def main(argv=None):
         parser.error("--models and --out are required (or --summary FOLDER)")
     costs = [float(c) for c in args.costs.split(",")]
     epsilons = [float(e) for e in args.epsilons.split(",") if e]
-    methods = [m for m in args.methods.split(",") if m]
+    methods = ([m for m in args.methods.split(",") if m] if args.methods else
+               [m for m in METHODS if args.shaded or m not in SHADED_ONLY])
     reuse = [m for m in args.reuse.split(",") if m]
     unknown = (set(methods) | set(reuse)) - set(METHODS)
     if unknown:
         parser.error(f"unknown methods {sorted(unknown)}; choose from {METHODS}")
+    flat_only = sorted((set(methods) | set(reuse)) & set(SHADED_ONLY)) if not args.shaded else []
+    if flat_only:
+        parser.error(f"{', '.join(flat_only)} is measured with --shaded only (the flat mode sees the base colour "
+                     "alone, on which a downscale of the input is the input)")
     args.out.mkdir(parents=True, exist_ok=True)
     if args.triangles:
         args.triangles.mkdir(parents=True, exist_ok=True)
     cache = ResultCache(None if args.no_cache else args.cache or args.out / "cache", costs=costs, screen=args.screen,
-                        evaluations=args.evaluations, epsilon=args.epsilon)
+                        evaluations=args.evaluations, epsilon=args.epsilon, shaded=args.shaded)
     models = _models(args.models)
     every = list(methods) + [_epsilon_method(e) for e in epsilons]
     to_measure = {path: [m for m in every if m not in reuse and not (cache.folder and cache.file(path, m).is_file())]
@@ -703,7 +760,8 @@ def main(argv=None):
         progress.model(index, len(models), path.stem, len(to_measure[path]), len(every) - len(to_measure[path]))
         print(compare_model(path, costs=costs, methods=methods, evaluations=args.evaluations, screen=args.screen,
                             epsilon=args.epsilon, epsilons=epsilons, workers=args.workers, out=args.out,
-                            reuse=reuse, triangles=args.triangles, cache=cache, progress=progress),
+                            reuse=reuse, triangles=args.triangles, cache=cache, progress=progress,
+                            shaded=args.shaded),
               flush=True)
     print(write_summary(args.out))
     return 0

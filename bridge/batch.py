@@ -203,12 +203,14 @@ def evaluate_file(args):
     Parameters
     ----------
     args : argparse.Namespace
-        ``input``, ``uv``, ``ref_uv`` (None: the active UV map), ``costs``, ``json``, ``plot``.
+        ``input``, ``uv``, ``ref_uv`` (None: the active UV map), ``costs``, ``json``, ``plot``, ``shaded``,
+        ``screen``.
 
     Returns
     -------
     dict
-        The result of :func:`bridge.evaluate.evaluate_uv_map` with ``input`` added.
+        The result of :func:`bridge.evaluate.evaluate_uv_map` (with ``shaded``:
+        :func:`bridge.evaluate_shaded.evaluate_shaded`, q_r per map included) with ``input`` added.
 
     Raises
     ------
@@ -223,11 +225,23 @@ def evaluate_file(args):
     if not objects:
         raise ValueError(f"no textured mesh object in {args.input} has a UV map '{args.uv}'")
     ref_uv = args.ref_uv or objects[0].data.uv_layers.active.name
-    result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs)
+    screen = getattr(args, "screen", 512)
+    if getattr(args, "shaded", False):
+        from .evaluate_shaded import evaluate_shaded
+
+        result = evaluate_shaded(objects, args.uv, reference_uv=ref_uv, costs=args.costs, screen_pixels=screen)
+    else:
+        result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs, screen_pixels=screen)
     result["input"] = str(pathlib.Path(args.input).resolve())
     for p in result["points"]:
-        print(f"c_r {p['relative_cost']:.4f} (r {p['resolution']}): q {p['q']:.6g} "
-              f"[{result['views']} views, {result['screen_pixels']} px]")
+        if "maps" in p:
+            per_map = ", ".join(f"{m['role']} {m['q']:.6g} (r {m['resolution']})" for m in p["maps"])
+            print(f"c_r {p['relative_cost']:.4f} (r {p['resolution']}, memory {p['memory_ratio']:.4f}): shaded q "
+                  f"{p['q']:.6g}; per map: {per_map} [{result['views']} views, {result['screen_pixels']} px, "
+                  f"{result['samples']} samples]")
+        else:
+            print(f"c_r {p['relative_cost']:.4f} (r {p['resolution']}): q {p['q']:.6g} "
+                  f"[{result['views']} views, {result['screen_pixels']} px]")
     print(f"E_iso {result['e_iso']:.6g}")
     if args.json:
         pathlib.Path(args.json).write_text(json.dumps(result, indent=2))
@@ -243,7 +257,8 @@ def evaluate_file(args):
                 label=args.uv)
         ax.set_yscale("log")
         ax.set_xlabel("relative cost $c_r$")
-        ax.set_ylabel(f"$q_r$ (GMSD, {result['screen_pixels']} px)")
+        ax.set_ylabel(f"$q_r$ ({'shaded, ' if result.get('mode') == 'shaded' else ''}GMSD, "
+                      f"{result['screen_pixels']} px)")
         ax.legend()
         fig.tight_layout()
         fig.savefig(args.plot)

@@ -160,3 +160,56 @@ def test_a_rerun_measures_only_what_is_not_cached(spot_obj, tmp_path, fake_measu
     assert calls == []
     table = json.loads((out / "spot_triangulated.json").read_text())["table"]
     assert table["cached"] == ["input", "repacked"]
+
+
+def test_the_shaded_mode_has_keys_of_its_own_and_leaves_the_flat_keys_alone(package):
+    """``--shaded`` adds its settings and the shaded evaluation's code to every key; the flat keys carry neither,
+    so adding the shaded mode left every flat key as it was. ``downscale`` re-bakes the input UV map: its key
+    depends on its sizing and the evaluation."""
+    kw = dict(costs=[0.3], screen=512, evaluations=100, epsilon=0.01)
+    assert "shaded" not in method_settings("input", **kw)
+    shaded = method_settings("input", **kw, shaded=True)
+    assert shaded["shaded"] is True and shaded["sizing"] == "texels"
+    assert method_settings("downscale", **kw, shaded=True)["sizing"] == "memory"
+    assert "bridge.evaluate_shaded" in method_sources("ours", shaded=True)
+    assert "bridge.evaluate_shaded" not in method_sources("ours")
+    flat = {m: code_hash(method_sources(m), package) for m in ("input", "ours")}
+    _edit(package / "bridge" / "evaluate_shaded.py", "SAMPLES = 16", "SAMPLES = 32")
+    assert flat == {m: code_hash(method_sources(m), package) for m in ("input", "ours")}
+    assert code_hash(method_sources("input", True), package) != code_hash(method_sources("input", True), PACKAGE)
+    assert method_sources("downscale") == ("bench.compare:SIZING",) + compare.EVALUATION_SOURCES
+
+
+def test_downscale_is_shaded_only(tmp_path, capsys):
+    with pytest.raises(SystemExit) as stopped:
+        compare.main(["--models", str(tmp_path), "--out", str(tmp_path / "out"), "--methods", "input,downscale"])
+    assert stopped.value.code == 2 and "downscale is measured with --shaded only" in capsys.readouterr().err
+
+
+def test_the_shaded_comparison_measures_downscale_on_the_input_map_by_memory(spot_obj, tmp_path, monkeypatch):
+    pytest.importorskip("bpy")
+    from perceptual_uv.bridge import evaluate_shaded
+
+    calls = []
+
+    def fake(objects, name, *, reference_uv, costs, sizing, **kw):
+        calls.append((name, reference_uv, sizing))
+        return {"screen_pixels": 512, "e_iso": 1.0, "points": [
+            {**_point(c, 0.1 * c), "memory_ratio": c, "maps": [{"role": "base_color", "q": 0.1 * c,
+                                                                 "resolution": 64}]} for c in costs]}
+
+    monkeypatch.setattr(evaluate_shaded, "evaluate_shaded", fake)
+    monkeypatch.setattr(evaluate_shaded, "shaded_reference", lambda *a, **kw: {"shaded": [], "maps": []})
+    monkeypatch.setattr(compare, "_plot", lambda *a, **kw: None)
+    out = tmp_path / "out"
+    out.mkdir()
+    cache = ResultCache(out / "cache", costs=[0.3], screen=512, evaluations=100, epsilon=0.01, shaded=True)
+    compare.compare_model(spot_obj, costs=[0.3], methods=["input", "downscale"], evaluations=100, screen=512,
+                          epsilon=0.01, epsilons=[], workers=1, out=out, cache=cache, shaded=True)
+    source = calls[0][1]
+    assert calls == [(source, source, "texels"), (source, source, "memory")]
+    data = json.loads((out / "spot_triangulated_shaded.json").read_text())
+    assert data["table"]["shaded"] is True and set(data["results"]) == {"input", "downscale"}
+    assert "| downscale | 0.3 | 0.300 |" in (out / "spot_triangulated_shaded.md").read_text()
+    assert cache.file(spot_obj, "input") != ResultCache(out / "cache", costs=[0.3], screen=512, evaluations=100,
+                                                        epsilon=0.01).file(spot_obj, "input")
