@@ -547,11 +547,14 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         for obj, rows in zip(objects, per_object):
             _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
 
+        yield step("loss", 0, 1, "Making the material copies")
         materials = (material_copies(objects, baked, uv_name, source_uv, created) if settings.use_material_copy
                      else [])
         warnings, maps_report = [], []
         saved = None
         for number, result in enumerate(bakes):
+            yield step("loss", number, len(bakes), f"Saving the {result.record.role.replace('_', ' ')} map "
+                       f"({number + 1}/{len(bakes)})")
             path, warning = _save_or_pack(result.image, output_dir)
             if path:
                 created.files.append(path)
