@@ -64,8 +64,9 @@ def _versioned_numba_folder():
     return str(folder)
 
 
-# Spawned workers inherit the variable, so they use the folder their parent chose.
-os.environ.setdefault("NUMBA_CACHE_DIR", _versioned_numba_folder())
+# Spawned workers inherit the variable, so they use the folder their parent chose (and prune nothing).
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    os.environ["NUMBA_CACHE_DIR"] = _versioned_numba_folder()
 
 import numba  # noqa: E402  (must follow NUMBA_CACHE_DIR)
 

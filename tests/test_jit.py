@@ -44,3 +44,17 @@ def test_numba_cache_folder_is_per_source_version_and_old_versions_are_pruned(tm
     assert folder == base / source_hash[:16] and folder.is_dir()
     assert [path.exists() for path in old] == [True, True, True, False, False]
     assert (base / "notes.txt").exists()
+
+
+def test_a_cache_folder_already_chosen_is_kept_and_nothing_is_pruned(tmp_path):
+    # Workers inherit NUMBA_CACHE_DIR from their parent: they must neither move to another folder nor prune.
+    base = tmp_path / "numba"
+    old = base / ("0" * 16)
+    old.mkdir(parents=True)
+    chosen = tmp_path / "chosen"
+    env = dict(os.environ, PERCEPTUAL_UV_CACHE=str(tmp_path), NUMBA_CACHE_DIR=str(chosen),
+               PYTHONPATH=str(pathlib.Path(perceptual_uv.__file__).parent.parent))
+    code = "import os, perceptual_uv.core._jit; print(os.environ['NUMBA_CACHE_DIR'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == str(chosen)
+    assert sorted(path.name for path in base.iterdir()) == ["0" * 16]
