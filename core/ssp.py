@@ -522,7 +522,6 @@ def solve_ssp(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, cha
     """
     V, F, uv, X, area, metric = run_generator(_iter_checked_problem(V, F, uv, texture, metric, geometric_weight,
                                                                     channels, "solve_ssp"))
-    m = F.shape[0]
     if int(max_iterations) < 1 or int(history_size) < 1:
         raise ValueError("max_iterations and history_size must be at least 1")
     if not tol >= 0:
