@@ -38,7 +38,7 @@ from mathutils import Vector
 
 from ..core.cost import relative_cost, resolution_for_cost
 from ..core.evaluation import perceptual_loss_of_views, symmetric_dirichlet
-from .bake import bake_kind, bake_maps
+from .bake import _reads, bake_kind, bake_maps
 from .evaluate import _dodecahedron_views, mesh_arrays, reference_resolution
 from .material import read_object_materials
 from .material_copy import _raw_bytes, image_side, map_resolution, material_copies, memory_resolution
@@ -214,10 +214,9 @@ def material_records(objects, reference_uv):
 
 
 def _slot_reads(objects, record, reference_uv):
-    """Per object, per slot: True when the slot's material reads ``record``'s image the way it is baked."""
-    key = (record.image.as_pointer(), bake_kind(record))
-    return [[any((other.image.as_pointer(), bake_kind(other)) == key for other in reading.maps)
-             for reading in read_object_materials(obj, source_uv=reference_uv)] for obj in objects]
+    """Per object, per slot (one False for an object without slots): whether the slot's material reads
+    ``record``'s image the way it is baked (:func:`.bake._reads`, what the bake itself goes by)."""
+    return [_reads(obj, record, reference_uv) for obj in objects]
 
 
 def shaded_views(objects, cameras, *, screen_pixels, baked=None, uv_name=None, reference_uv=None,
@@ -291,14 +290,20 @@ def map_views(objects, record, cameras, *, screen_pixels, uv_name, image=None, r
     with WorkbenchRenderer(width=int(screen_pixels), texture_values="stored") as renderer:
         plain = None
         for obj, slot_reads in zip(objects, reads):
-            proxy = renderer.add_object(obj, uv_name=uv_name, image=image)
-            if slot_reads and not all(slot_reads):
+            proxy = renderer.add_object(obj, uv_name=uv_name, image=image)  # one textured slot on a mesh copy
+            if not all(slot_reads):
                 if plain is None:
                     plain = renderer._new(bpy.data.materials, "perceptual_uv_plain")
                     plain.diffuse_color = _PLAIN_GREY
-                for index, read in enumerate(slot_reads):
-                    if not read:
-                        proxy.data.materials[index] = plain
+                # one slot per source slot again, and each face's material index from the source mesh (clearing
+                # the copy's slots reset them)
+                textured = proxy.data.materials[0]
+                proxy.data.materials.clear()
+                for read in slot_reads:
+                    proxy.data.materials.append(textured if read else plain)
+                indices = np.empty(len(obj.data.polygons), dtype=np.int32)
+                obj.data.polygons.foreach_get("material_index", indices)
+                proxy.data.polygons.foreach_set("material_index", indices)
         return [renderer.render(camera) for camera in cameras]
 
 

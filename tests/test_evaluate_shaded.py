@@ -175,3 +175,26 @@ def test_spot_floor_at_512_px(spot_obj):
     (point,) = evaluate_shaded(objects, uv, reference_uv=uv, costs=(1.0,), screen_pixels=512)["points"]
     assert 0 < point["q"] < 1e-6
     assert [m["role"] for m in point["maps"]] == ["base_color"] and 0 < point["maps"][0]["q"] < 7e-6
+
+
+def test_a_map_view_shows_slots_that_do_not_read_the_map_in_flat_grey():
+    # The bumpy sphere with a second slot, a material without images, on its upper half. The base colour's
+    # view (stored values, flat lighting) shows 0.6 where slot 0 reads the map and _PLAIN_GREY's 0.5 elsewhere.
+    from perceptual_uv.bridge.evaluate_shaded import _slot_reads, map_views
+
+    obj = bumpy_sphere()
+    obj.data.materials.append(bpy.data.materials.new("no_images"))
+    centres = np.array([polygon.center.z for polygon in obj.data.polygons])
+    obj.data.polygons.foreach_set("material_index", (centres > 0).astype(np.int32))
+    uv = obj.data.uv_layers.active.name
+    (record,) = [record for record in material_records([obj], uv) if record.role == "base_color"]
+    reads = _slot_reads([obj], record, uv)
+    assert reads == [[True, False]]
+    V, _, _ = mesh_arrays([obj], uv)
+    side_view = [camera for camera in _dodecahedron_views(V)  # a view that sees both halves
+                 if abs(np.subtract(camera.position, camera.look_at)[2]) < 0.5 * np.linalg.norm(
+                     np.subtract(camera.position, camera.look_at))][0]
+    (view,) = map_views([obj], record, [side_view], screen_pixels=SCREEN, uv_name=uv, reads=reads)
+    values = np.round(view[..., 0][view[..., 3] > 0.999].astype(np.float64), 2)
+    assert set(np.unique(values)) == {0.5, 0.6}
+    assert list(obj.data.materials) == [obj.data.materials[0], bpy.data.materials["no_images"]]
