@@ -25,7 +25,8 @@ from .mesh_io import read_mesh
 from .render import Camera, WorkbenchRenderer
 from .bake import bake_base_color
 
-__all__ = ["reference_resolution", "mesh_arrays", "render_views", "face_id_views", "evaluate_uv_map"]
+__all__ = ["reference_resolution", "mesh_arrays", "render_views", "face_id_views", "evaluate_uv_map",
+           "checked_inputs"]
 
 
 def reference_resolution(objects):
@@ -138,6 +139,30 @@ def face_id_views(objects, *, screen_pixels=512):
     return out
 
 
+def checked_inputs(objects, costs, screen_pixels, uv_names):
+    """``(objects, costs)`` as lists after the checks every evaluation makes: objects given, costs positive and
+    finite, views of at least 16 px, and each object a mesh with every UV map in ``uv_names``.
+
+    Raises
+    ------
+    ValueError
+        With the first problem found.
+    """
+    objects = list(objects)
+    if not objects:
+        raise ValueError("no objects to evaluate")
+    costs = [float(c) for c in costs]
+    if not costs or any(not np.isfinite(c) or c <= 0 for c in costs):
+        raise ValueError(f"costs must be positive numbers, got {costs}")
+    if int(screen_pixels) < 16:
+        raise ValueError(f"screen_pixels must be >= 16, got {screen_pixels}")
+    for obj in objects:
+        for name in uv_names:
+            if obj.type != "MESH" or name not in obj.data.uv_layers:
+                raise ValueError(f"'{obj.name}' has no UV map '{name}'")
+    return objects, costs
+
+
 def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
                     margin=None, reference_views=None, keep_images=False, keep_views=False):
     """q_r at each target relative cost and E_iso of UV map ``uv_name`` (paper Sec. 5.1).
@@ -176,18 +201,7 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     ValueError
         Empty objects, missing UV maps, no base-colour image, non-positive costs or screen size.
     """
-    objects = list(objects)
-    if not objects:
-        raise ValueError("no objects to evaluate")
-    costs = [float(c) for c in costs]
-    if not costs or any(not np.isfinite(c) or c <= 0 for c in costs):
-        raise ValueError(f"costs must be positive numbers, got {costs}")
-    if int(screen_pixels) < 16:
-        raise ValueError(f"screen_pixels must be >= 16, got {screen_pixels}")
-    for obj in objects:
-        for name in (uv_name, reference_uv):
-            if obj.type != "MESH" or name not in obj.data.uv_layers:
-                raise ValueError(f"'{obj.name}' has no UV map '{name}'")
+    objects, costs = checked_inputs(objects, costs, screen_pixels, (uv_name, reference_uv))
     r_input = reference_resolution(objects)
     V, F, uv = mesh_arrays(objects, uv_name)
     _, _, uv_ref = mesh_arrays(objects, reference_uv)

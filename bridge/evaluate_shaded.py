@@ -39,7 +39,7 @@ from mathutils import Vector
 from ..core.cost import relative_cost, resolution_for_cost
 from ..core.evaluation import perceptual_loss_of_views, symmetric_dirichlet
 from .bake import _reads, bake_kind, bake_maps
-from .evaluate import _dodecahedron_views, mesh_arrays, reference_resolution
+from .evaluate import _dodecahedron_views, checked_inputs, mesh_arrays, reference_resolution
 from .material import read_object_materials
 from .material_copy import _raw_bytes, image_side, map_resolution, material_copies, memory_resolution
 from .render import WorkbenchRenderer
@@ -388,20 +388,9 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         Empty objects, missing UV maps, no image read through ``reference_uv``, bad costs, screen size, sizing or
         view count.
     """
-    objects = list(objects)
-    if not objects:
-        raise ValueError("no objects to evaluate")
-    costs = [float(c) for c in costs]
-    if not costs or any(not np.isfinite(c) or c <= 0 for c in costs):
-        raise ValueError(f"costs must be positive numbers, got {costs}")
-    if int(screen_pixels) < 16:
-        raise ValueError(f"screen_pixels must be >= 16, got {screen_pixels}")
+    objects, costs = checked_inputs(objects, costs, screen_pixels, (uv_name, reference_uv))
     if sizing not in SIZINGS:
         raise ValueError(f"sizing must be one of {SIZINGS}, got {sizing!r}")
-    for obj in objects:
-        for name in (uv_name, reference_uv):
-            if obj.type != "MESH" or name not in obj.data.uv_layers:
-                raise ValueError(f"'{obj.name}' has no UV map '{name}'")
     records = material_records(objects, reference_uv)
     try:
         r_input = reference_resolution(objects)
