@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 
 from ..core import cost as texel_cost
-from ..core.progress import RunProgress, format_seconds
+from ..core.progress import InThread, RunProgress, format_seconds
 from .material import base_color_image_node
 from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, image_side, image_stem, iter_loss_planes_of,
                             map_report, map_resolution, material_copies, memory_resolution, read_maps,
@@ -219,7 +219,6 @@ def _iter_import_stages(step):
     import importlib
     import importlib.util
     import sys
-    import threading
 
     names = [importlib.util.resolve_name(name, __package__) for name in _STAGE_MODULES]
     if all(name in sys.modules for name in names):
@@ -230,12 +229,8 @@ def _iter_import_stages(step):
             with contextlib.suppress(Exception):
                 importlib.import_module(name)
 
-    thread = threading.Thread(target=load, daemon=True, name="perceptual_uv-imports")
-    thread.start()
-    thread.join(0.1)
-    while thread.is_alive():
+    for _ in InThread(load).wait():
         yield step("read", 0, _READ_STEPS, "Loading the optimizer")
-        thread.join(0.1)
 
 
 def _iter_read_objects(objects, source_uv, settings, step):

@@ -1,7 +1,8 @@
 """Progress of a run: driving a stage written as a generator, and the whole run's fraction and time left."""
+import threading
 import time
 
-__all__ = ["run_generator", "RunProgress", "format_seconds"]
+__all__ = ["run_generator", "InThread", "RunProgress", "format_seconds"]
 
 
 def run_generator(generator, progress=None):
@@ -21,6 +22,52 @@ def run_generator(generator, progress=None):
             return finished.value
         if progress is not None:
             progress(*item)
+
+
+class InThread:
+    """``function(*args)`` running in a daemon thread, so that a generator can hand control back while it runs.
+
+    Starting a worker pool, waiting for its processes to exit, or a session's first import of the stages'
+    modules take about a second each; in a thread they leave a stage's generator free to yield every
+    ``interval`` seconds (a modal operator's tick) meanwhile.
+
+    Parameters
+    ----------
+    function : callable
+    *args
+        Its arguments.
+    interval : float, optional
+        Seconds :meth:`wait` waits between two yields.
+    """
+
+    def __init__(self, function, *args, interval=0.1):
+        self._value = self._error = None
+        self._interval = float(interval)
+        self._thread = threading.Thread(target=self._run, args=(function, args), daemon=True,
+                                        name="perceptual_uv-worker")
+        self._thread.start()
+
+    def _run(self, function, args):
+        try:
+            self._value = function(*args)
+        except BaseException as error:  # noqa: BLE001  raised again in the generator that waits for it
+            self._error = error
+
+    def wait(self):
+        """Generator: yield None every ``interval`` seconds until the function has returned; return its value,
+        or raise its exception."""
+        self._thread.join(self._interval)
+        while self._thread.is_alive():
+            yield None
+            self._thread.join(self._interval)
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+    def join(self):
+        """Block until the function has returned; its value, or None if it raised."""
+        self._thread.join()
+        return self._value
 
 
 class RunProgress:

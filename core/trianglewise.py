@@ -98,7 +98,7 @@ from .charts import texel_areas
 from .loss import _check_view_faces, prepare_triangles, textured_triangles
 from .loss_planes import texture_planes
 from .one_ring import one_ring_faces
-from .progress import run_generator
+from .progress import InThread, run_generator
 
 __all__ = ["WorkerDiedError", "LossNotEvaluableError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS",
            "SIGNAL_WEIGHT", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
@@ -774,44 +774,8 @@ def _make_pool(workers, state):
         return context.Pool(workers, initializer=exec, initargs=(_BOOTSTRAP, namespace))
 
 
-class _InThread:
-    """``function(*args)`` running in a daemon thread, so that a generator can hand control back while it runs.
-
-    Starting the worker pool and waiting for its processes to exit take about a second each; in a thread they
-    leave the generator free to yield every ``WAIT_SECONDS`` (a modal operator's tick) meanwhile.
-    """
-
-    def __init__(self, function, *args):
-        self._value = self._error = None
-        self._thread = threading.Thread(target=self._run, args=(function, args), daemon=True,
-                                        name="perceptual_uv-workers")
-        self._thread.start()
-
-    def _run(self, function, args):
-        try:
-            self._value = function(*args)
-        except BaseException as error:  # noqa: BLE001  raised again in the generator that waits for it
-            self._error = error
-
-    def wait(self):
-        """Generator: yield None every ``WAIT_SECONDS`` until the function has returned; return its value, or
-        raise its exception."""
-        self._thread.join(WAIT_SECONDS)
-        while self._thread.is_alive():
-            yield None
-            self._thread.join(WAIT_SECONDS)
-        if self._error is not None:
-            raise self._error
-        return self._value
-
-    def join(self):
-        """Block until the function has returned; its value, or None if it raised."""
-        self._thread.join()
-        return self._value
-
-
 def _terminate_when_started(starting):
-    """Stop the pool ``starting`` (an :class:`_InThread` of :func:`_make_pool`) makes, once it is made."""
+    """Stop the pool ``starting`` (an :class:`.progress.InThread` of :func:`_make_pool`) makes, once it is made."""
     pool = starting.join()
     if pool is not None:
         pool.terminate()
@@ -833,7 +797,7 @@ def _run_chunks(kind, state, faces, workers, chunk_size, scheduler=None):
     workers = min(workers, len(chunks))
     pool = None
     if workers > 1:
-        starting = _InThread(_make_pool, workers, state)
+        starting = InThread(_make_pool, workers, state, interval=WAIT_SECONDS)
         try:
             pool = yield from starting.wait()
         except BaseException:
@@ -865,7 +829,7 @@ def _run_chunks(kind, state, faces, workers, chunk_size, scheduler=None):
                     yield None  # nothing finished yet: the caller gets control back (a modal operator's tick)
             yield output
         pool.close()
-        yield from _InThread(pool.join).wait()  # the workers take about a second to exit
+        yield from InThread(pool.join, interval=WAIT_SECONDS).wait()  # the workers take about a second to exit
     finally:
         pool.terminate()
 
