@@ -25,6 +25,12 @@ this run's costs, same screen) whatever the code; the JSON and the table name th
 that a change to the mesh-wise stage or the packing is measured without that stage again; t_triangle is then
 the time of the run that wrote it.
 
+Ours and every variant of it (``ours_*``, ``paper``) optimize on what a run of the product sees: every map of the
+material, each turned into the loss's planes as the pipeline does (``bridge.baselines.loss_planes``), so a
+triangle whose detail is in the normal or roughness map keeps its size. ``ours_luma`` is ours on the base colour's
+luma alone (what the loss saw before materials, and the paper's loss): the difference between the two is what the
+joint loss does. The flat mode's q_r sees the base colour only; what the other maps gain shows in ``--shaded``.
+
 ``--shaded`` evaluates every method in the shaded mode (``bridge.evaluate_shaded``): every map re-baked, the
 whole material rendered by Cycles under fixed lights, q_r per map too, plotted against the maps' image memory;
 the files are ``<model>_shaded.*`` (use their own ``--out`` folder, so the summary stays per mode). Its method
@@ -43,7 +49,7 @@ import time
 
 import numpy as np
 
-METHODS = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSP", "SSPOP", "ours",
+METHODS = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSP", "SSPOP", "ours", "ours_luma",
            "ours_rotation", "ours_common", "ours_identity", "paper", "ours_no_texel_floor", "ours_no_signal_blend",
            "ours_no_weight_floor", "ours_no_fold_restore", "downscale")
 SHADED_ONLY = ("downscale",)
@@ -55,32 +61,41 @@ BASELINES = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH",
 MODEL_SUFFIXES = (".glb", ".gltf", ".obj", ".blend")
 SAVING_REFERENCE_COST = 0.5
 WIN_COSTS = (0.2, 0.3, 0.5)
-OURS_VARIANTS = {"ours": {}, "ours_common": {"formulation": "common"}, "ours_identity": {"weights": "identity"},
-                 "ours_rotation": {"rotation_scale": 1.0},
+OURS_VARIANTS = {"ours": {}, "ours_luma": {}, "ours_common": {"formulation": "common"},
+                 "ours_identity": {"weights": "identity"}, "ours_rotation": {"rotation_scale": 1.0},
                  "ours_no_texel_floor": {"min_texels": 0.0}, "ours_no_signal_blend": {"signal_weight": 0.0},
                  "ours_no_weight_floor": {"weight_floor": 0.0}, "ours_no_fold_restore": {"fold_tolerance": 1.0},
                  "paper": {"min_texels": 0.0, "signal_weight": 0.0, "weight_floor": 0.0, "rotation_scale": 1.0}}
-"""Keyword arguments of ``bridge.baselines.perceptual_uv`` for ours, its Fig. 17 ablations, ours without each of
-the constants the project added (``MIN_TEXELS``, ``SIGNAL_WEIGHT``, ``STRETCH_WEIGHT_FLOOR``; a fold tolerance of
-1 restores no chart, since a shared-area fraction cannot grow by more than 1), and ``paper``: the paper as
-written, i.e. one fit of Eq. 19 with Eq. 17's weights unchanged (no texel floor, no signal-stretch blend, no
-weight floor) on the triangle-wise results of :data:`PAPER_TRIANGLES`, then the post-processing, packing and
-bake every method gets."""
+"""Keyword arguments of ``bridge.baselines.perceptual_uv`` for ours, ``ours_luma`` (ours on the base colour's luma
+alone, :data:`LOSS_MAPS`), its Fig. 17 ablations, ours without each of the constants the project added
+(``MIN_TEXELS``, ``SIGNAL_WEIGHT``, ``STRETCH_WEIGHT_FLOOR``; a fold tolerance of 1 restores no chart, since a
+shared-area fraction cannot grow by more than 1), and ``paper``: the paper as written, i.e. one fit of Eq. 19 with
+Eq. 17's weights unchanged (no texel floor, no signal-stretch blend, no weight floor) on the triangle-wise results
+of :data:`PAPER_TRIANGLES`, then the post-processing, packing and bake every method gets. Every one of them sees
+the maps :data:`LOSS_MAPS` gives it."""
 PAPER_TRIANGLES = {"formulation": "barrier", "max_screen_pixels": 64, "view_faces": "one_ring"}
 """The triangle-wise stage as written: the barrier form (Eq. 12-14) and App. A's fixed 64 px views of the
 one-ring."""
 TRIANGLE_OPTIONS = {"paper": PAPER_TRIANGLES}
 """Options of ``core.trianglewise.optimize_triangles`` per method whose triangle-wise stage is not ours'."""
+LOSS_MAPS = {"ours_luma": "luma"}
+"""What the loss of each of ours' variants sees (``bridge.baselines.loss_planes``), ``"material"`` when not listed:
+every map of the material, read and turned into planes as a run of the product does (base colour as luma, normal
+maps as their shading, data maps per channel), for the triangle-wise stage, the fit's targets, the choice between
+the fits and the bound's fractions alike. ``ours_luma`` sees the base colour's luma alone (the paper's loss): on a
+material whose only varying map is the base colour it is ours, and ours' triangle-wise result is reused."""
 
 _PACKED = ("bridge.pack", "bridge.baselines:_check", "bridge.baselines:_pack", "bridge.baselines:_write",
-           "bridge.baselines:_texture", "bridge.baselines:PACK_MARGIN_PIXELS")
+           "bridge.baselines:_texture", "bridge.baselines:_texture_image", "bridge.baselines:PACK_MARGIN_PIXELS")
 _FINISHED = _PACKED + ("core.charts", "core.overlap", "core.meshwise", "core.chartfit:finish_charts",
                        "bridge.baselines:_finished", "bridge.baselines:_post_counts")
 _OURS = _FINISHED + ("core.chartfit", "core.trianglewise", "core.loss", "core.ssp",
                      "bridge.baselines:perceptual_uv", "bridge.baselines:triangle_targets",
                      "bridge.baselines:_triangle_cache_key", "bench.compare:UVMaps.triangles",
                      "bench.compare:OURS_VARIANTS", "bench.compare:TRIANGLE_OPTIONS",
-                     "bench.compare:PAPER_TRIANGLES")
+                     "bench.compare:PAPER_TRIANGLES", "bridge.material_copy", "core.loss_planes",
+                     "bridge.baselines:loss_planes", "bridge.baselines:LOSS_MAPS", "bench.compare:LOSS_MAPS",
+                     "bench.compare:UVMaps.planes")
 METHOD_SOURCES = {
     "input": (),
     "repacked": _PACKED + ("bridge.baselines:repacked_input",),
@@ -121,22 +136,39 @@ def _epsilon_method(epsilon):
 
 
 class UVMaps:
-    """Makes one UV map per method on the objects (the triangle-wise stage runs once per epsilon) and keeps times."""
+    """Makes one UV map per method on the objects (the triangle-wise stage runs once per epsilon, options and loss
+    planes) and keeps times."""
 
     def __init__(self, objects, source, *, evaluations, epsilon, workers, cache=None):
         self.objects, self.source = objects, source
         self.evaluations, self.epsilon, self.workers = evaluations, epsilon, workers
         self.cache = cache  # (folder, model stem) or None
-        self.times, self._triangles = {}, {}
+        self.times, self._triangles, self._planes = {}, {}, {}
         self.reports = {}  # per method: what bridge.baselines returned (timings, restored and turned charts)
 
+    def planes(self, method="ours"):
+        """The planes ``method``'s loss sees (:data:`LOSS_MAPS`), read once per kind; a kind whose planes are
+        those of ``"material"`` (same names and values) is that same stack."""
+        from ..bridge import baselines
+
+        maps = LOSS_MAPS.get(method, "material")
+        if maps not in self._planes:
+            material = None if maps == "material" else self.planes()
+            planes = baselines.loss_planes(self.objects, source_uv=self.source, maps=maps)
+            if material is not None and planes.names == material.names and all(
+                    np.array_equal(a, b) for a, b in zip(planes, material)):
+                planes = material
+            self._planes[maps] = planes
+        return self._planes[maps]
+
     def triangles(self, epsilon, method="ours"):
-        """The triangle-wise result at ``epsilon`` with ``method``'s options (:data:`TRIANGLE_OPTIONS`): run once
-        per epsilon and options, or read from the cache."""
+        """The triangle-wise result at ``epsilon`` with ``method``'s options (:data:`TRIANGLE_OPTIONS`) on its
+        loss planes (:meth:`planes`): run once per epsilon, options and planes, or read from the cache."""
         from ..bridge import baselines
 
         options = TRIANGLE_OPTIONS.get(method, {})
-        label = "" if not options else f"_{method}"
+        planes = self.planes(method)
+        label = ("" if planes is self.planes() else f"_{LOSS_MAPS[method]}") + ("" if not options else f"_{method}")
         if (epsilon, label) not in self._triangles:
             cache = None
             if self.cache is not None:
@@ -144,7 +176,7 @@ class UVMaps:
                 cache = folder / f"{stem}_eps{epsilon:g}_n{self.evaluations}{label}.npz"
             self._triangles[epsilon, label], t = baselines.triangle_targets(
                 self.objects, source_uv=self.source, epsilon=epsilon, evaluations=self.evaluations,
-                workers=self.workers, cache=cache, **options)
+                workers=self.workers, cache=cache, planes=planes, **options)
             name = "triangle" if epsilon == self.epsilon else f"triangle_eps{epsilon:g}"
             self.times[name + label] = t
         return self._triangles[epsilon, label]
@@ -170,7 +202,8 @@ class UVMaps:
             triangles = self.triangles(eps, method)
             start = time.perf_counter()  # the triangle-wise time is reported on its own
             report = baselines.perceptual_uv(objects, source_uv=source, triangles=triangles, name=name,
-                                             workers=self.workers, **OURS_VARIANTS.get(method, {}))
+                                             workers=self.workers, planes=self.planes(method),
+                                             **OURS_VARIANTS.get(method, {}))
             if method == "ours":
                 self.times["mesh"] = report["mesh"]
         self.times[method] = time.perf_counter() - start
@@ -277,7 +310,8 @@ def method_settings(method, *, costs, screen, evaluations, epsilon, shaded=False
     if method in OURS_VARIANTS or method.startswith("ours_eps"):
         eps = float(method[len("ours_eps"):]) if method.startswith("ours_eps") else float(epsilon)
         settings.update(evaluations=int(evaluations), epsilon=eps, variant=OURS_VARIANTS.get(method, {}),
-                        triangle_options=TRIANGLE_OPTIONS.get(method, {}))
+                        triangle_options=TRIANGLE_OPTIONS.get(method, {}),
+                        loss_maps=LOSS_MAPS.get(method, "material"))
     return settings
 
 

@@ -5,7 +5,8 @@ unwrap runs on temporary copies of the objects) and packs it with 90-degree rota
 (:func:`bridge.pack.pack_uv_layer`, DESIGN decision 7). Before packing, every method's charts get the same
 post-processing (:func:`core.chartfit.finish_charts`: folded charts keep their input layout, every chart is
 turned rigidly to its rotation targets), so that a comparison measures the methods and not whether they were
-given the fallbacks.
+given the fallbacks. The triangle-wise and mesh-wise stages of ours see what a run of the product sees: every map
+of the material (:func:`loss_planes`, :mod:`.material_copy`), not the base colour alone.
 
 References
 ----------
@@ -22,7 +23,8 @@ import numpy as np
 
 from ..core.chartfit import finish_charts, fit_charts
 from ..core.charts import uv_topology
-from ..core.loss import above_bound, texture_luma
+from ..core.loss import above_bound
+from ..core.loss_planes import PlaneStack
 from ..core.meshwise import solve_meshwise
 from ..core.overlap import FOLD_TOLERANCE
 from ..core.ssp import solve_ssp, ssp_targets
@@ -32,11 +34,16 @@ from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
 from .material import base_color_image_node
+from .material_copy import loss_planes_of, read_maps
 
-__all__ = ["BLENDER_METHODS", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv",
-           "perceptual_uv", "triangle_targets"]
+__all__ = ["BLENDER_METHODS", "LOSS_MAPS", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv",
+           "loss_planes", "perceptual_uv", "triangle_targets"]
 
 BLENDER_METHODS = ("ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH")
+
+LOSS_MAPS = ("material", "luma")
+"""What the loss of ours sees (:func:`loss_planes`): every map of the material, as the product, or the base
+colour's luma alone (the single-texture loss of the paper)."""
 
 PACK_MARGIN_PIXELS = 4
 
@@ -81,13 +88,54 @@ def _post_counts(restored, angles):
     return {"restored_charts": int(len(restored)), "turned_charts": int(np.count_nonzero(angles))}
 
 
-def _texture(objects):
+def _texture_image(objects):
+    """The first base-colour image of the objects' materials (the loss image: its texel grid is the frame)."""
     for obj in objects:
         for slot in obj.material_slots:
             node = base_color_image_node(slot.material)
             if node is not None and node.image is not None:
-                return read_image(node.image)
+                return node.image
     raise ValueError("no base-colour image")
+
+
+def _texture(objects):
+    return read_image(_texture_image(objects))
+
+
+def loss_planes(objects, *, source_uv, maps="material"):
+    """The planes the triangle-wise and mesh-wise stages of ours see, built as the product builds them.
+
+    Parameters
+    ----------
+    objects : sequence of bpy.types.Object
+    source_uv : str
+        The UV map the materials' images are read through.
+    maps : {"material", "luma"}, optional
+        ``"material"``: every map the materials read through ``source_uv``
+        (:func:`.material_copy.read_maps`), each as the planes :func:`.material_copy.loss_planes_of` gives it
+        (base colour as luma first, tangent-space normals as their shading, data maps per used channel), so
+        that a comparison measures what a run of the product does. ``"luma"``: the first of those planes alone,
+        the base colour's luma (the paper's single-texture loss).
+
+    Returns
+    -------
+    core.loss_planes.PlaneStack
+        With its plane names. ``"luma"`` of a material whose stack is its luma alone is that same stack.
+
+    Raises
+    ------
+    ValueError
+        When a map cannot be re-baked or the base colour is not read through ``source_uv``
+        (:func:`.material_copy.read_maps`): the product refuses such an input too.
+    """
+    if maps not in LOSS_MAPS:
+        raise ValueError(f"maps must be one of {LOSS_MAPS}, got {maps!r}")
+    image = _texture_image(objects)
+    records, _ = read_maps(objects, source_uv, image)
+    planes = loss_planes_of(records, read_image(image))
+    if maps == "luma" and len(planes) > 1:
+        return PlaneStack(planes[:1], planes.names[:1])
+    return planes
 
 
 def repacked_input(objects, *, source_uv, name="InputRepacked"):
@@ -149,21 +197,38 @@ def sspop_uv(objects, *, source_uv, name="SSPOP"):
 
 
 def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=64, workers=1, seed=0, cache=None,
-                     **options):
+                     planes=None, **options):
     """The triangle-wise stage (Sec. 4.1) on the objects: its result and its time (s), reusable across ablations.
 
-    ``options`` go to :func:`core.trianglewise.optimize_triangles` (e.g. the paper's ``formulation="barrier"``,
-    ``max_screen_pixels=64`` and ``view_faces="one_ring"``) and into the cache key.
+    Parameters
+    ----------
+    objects : sequence of bpy.types.Object
+    source_uv : str
+    epsilon, evaluations, screen_pixels, workers, seed
+        Of :func:`core.trianglewise.optimize_triangles`.
+    cache : path, optional
+        An ``.npz`` file that keeps the result between runs, so that a change to the later stages is measured
+        without the triangle-wise stage again: it is read when it was written for the same vertices, faces, UVs,
+        planes (every array and its name) and settings (the time returned is then that of the run that wrote
+        it), and written otherwise. The code is not part of the key: a change to the triangle-wise stage needs a
+        new cache.
+    planes : core.loss_planes.PlaneStack, optional
+        What the loss sees; default :func:`loss_planes` of the objects (every map of the material, as the
+        product's run).
+    **options
+        To :func:`core.trianglewise.optimize_triangles` (e.g. the paper's ``formulation="barrier"``,
+        ``max_screen_pixels=64`` and ``view_faces="one_ring"``) and into the cache key.
 
-    ``cache`` (an ``.npz`` path) keeps the result between runs, so that a change to the later stages is measured
-    without the triangle-wise stage again: it is read when it was written for the same vertices, faces, UVs,
-    texture and settings (the time returned is then that of the run that wrote it), and written otherwise.
-    The code is not part of the key: a change to the triangle-wise stage needs a new cache.
+    Returns
+    -------
+    result : core.trianglewise.TrianglewiseResult
+    seconds : float
     """
     V, F, uv = mesh_arrays(objects, source_uv)
-    luma = texture_luma(_texture(objects))
+    if planes is None:
+        planes = loss_planes(objects, source_uv=source_uv)
     settings = dict(epsilon=epsilon, evaluations=evaluations, screen_pixels=screen_pixels, seed=seed, **options)
-    key = _triangle_cache_key(V, F, uv, luma, **settings)
+    key = _triangle_cache_key(V, F, uv, planes, **settings)
     if cache is not None and os.path.exists(cache):
         with np.load(cache) as stored:
             if str(stored["key"]) == key:
@@ -175,17 +240,22 @@ def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=
                     fields[name] = str(fields[name])
                 return TrianglewiseResult(**fields), float(stored["seconds"])
     start = time.perf_counter()
-    result = optimize_triangles(V, F, uv, luma, workers=workers, **settings)
+    result = optimize_triangles(V, F, uv, planes, workers=workers, **settings)
     seconds = time.perf_counter() - start
     if cache is not None:
         np.savez(cache, key=key, seconds=seconds, **dataclasses.asdict(result))
     return result, seconds
 
 
-def _triangle_cache_key(V, F, uv, luma, **settings):
-    """What a cached triangle-wise result must match: a hash of the arrays and the settings."""
+def _triangle_cache_key(V, F, uv, planes, **settings):
+    """What a cached triangle-wise result must match: a hash of the mesh's arrays, of every plane the loss sees
+    (its name, dtype, shape and values) and of the settings."""
+    if isinstance(planes, np.ndarray):
+        planes = PlaneStack([planes])
+    names = getattr(planes, "names", tuple(f"plane{i}" for i in range(len(planes))))
     digest = hashlib.sha256(repr(sorted(settings.items())).encode())
-    for array in (V, F, uv, luma):
+    digest.update(repr(("planes", tuple(names))).encode())
+    for array in (V, F, uv, *planes):
         array = np.ascontiguousarray(array)
         digest.update(f"{array.dtype}{array.shape}".encode())
         digest.update(array.tobytes())
@@ -194,7 +264,7 @@ def _triangle_cache_key(V, F, uv, luma, **settings):
 
 def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual",
                   rotation_scale=None, workers=1, min_texels=MIN_TEXELS, signal_weight=SIGNAL_WEIGHT,
-                  weight_floor=STRETCH_WEIGHT_FLOOR, fold_tolerance=FOLD_TOLERANCE):
+                  weight_floor=STRETCH_WEIGHT_FLOOR, fold_tolerance=FOLD_TOLERANCE, planes=None):
     """Our mesh-wise stage on triangle-wise results ``triangles``, or one of the Fig. 17 ablations, packed.
 
     By default as in the pipeline (:func:`core.chartfit.fit_charts`): fits with and without Eq. 16's rotation
@@ -222,6 +292,10 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         ``floor`` of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights`.
     fold_tolerance : float, optional
         Of :func:`core.overlap.restore_folded_charts`, for the default.
+    planes : core.loss_planes.PlaneStack, optional
+        What the loss sees in the fit's targets, the choice between the fits and ``above_bound``: those
+        ``triangles`` were optimized on; default :func:`loss_planes` of the objects (every map of the material,
+        as the product's run).
 
     Returns
     -------
@@ -234,14 +308,15 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     start = time.perf_counter()
     V, F, uv = mesh_arrays(objects, source_uv)
     texture = _texture(objects)
-    luma = texture_luma(texture)
+    if planes is None:
+        planes = loss_planes(objects, source_uv=source_uv)
     signal = ssp_targets(V, F, uv, texture)[0] if signal_weight > 0 else None
-    params = triangles.fit_targets(uv, luma, min_texels=min_texels, signal_targets=signal,
+    params = triangles.fit_targets(uv, planes, min_texels=min_texels, signal_targets=signal,
                                    signal_weight=signal_weight)
     fit_losses = None
     if (weights, formulation, rotation_scale) == ("perceptual", "perceptual", None):
         fit = fit_charts(F, uv, params, *triangles.fit_weights(floor=weight_floor),
-                         measure=lambda new_uv: losses_at(V, F, uv, luma, new_uv, workers=workers),
+                         measure=lambda new_uv: losses_at(V, F, uv, planes, new_uv, workers=workers),
                          texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance)
         uv_fit, post, fit_losses = fit.uv, _post_counts(fit.restored, fit.angles), fit.losses
     else:
@@ -254,8 +329,8 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         post = _post_counts(restored, angles)
     t_mesh = time.perf_counter() - start
     if fit_losses is None:
-        fit_losses = losses_at(V, F, uv, luma, uv_fit, workers=workers)
-    bound = above_bound(uv, luma, triangles.epsilon, targets=losses_of(V, F, uv, luma, params, workers=workers),
+        fit_losses = losses_at(V, F, uv, planes, uv_fit, workers=workers)
+    bound = above_bound(uv, planes, triangles.epsilon, targets=losses_of(V, F, uv, planes, params, workers=workers),
                         fit=fit_losses)
     _write(objects, name, uv_fit)
     _pack(objects, name)

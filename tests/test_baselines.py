@@ -242,3 +242,142 @@ def test_without_targets_finish_charts_keeps_the_input_grid():
         residue = np.mod(np.angle(ratio) + np.pi / 4, np.pi / 2) - np.pi / 4
         np.testing.assert_allclose(residue, 0, atol=1e-6)
         np.testing.assert_allclose(np.abs(ratio), 1.7, rtol=1e-9)  # a turn: no stretch
+
+
+# --- ours sees every map of the material, as the product's run does (issues 22 and 23) ---
+
+DETAIL_FACES = 0.3  # the detail covers the texture where u < 0.3; the grid's UVs are 0.1 + 0.8 (x, y)
+
+
+@pytest.fixture(params=["normal", "roughness"])
+def detail_grid(request):
+    """A 4 x 4 grid (``textured_grid``) whose base colour is flat and whose only detail, where u < 0.3, is in a
+    tangent-space normal map (``"normal"``: ``bump_normal_map``) or in the roughness (green) channel of a packed
+    occlusion-roughness-metallic image (``"roughness"``). Yields the object, its UV map, the faces whose UVs lie
+    on the detail and those whose UVs lie where every map is flat (u >= 0.7); the data blocks it made are removed
+    afterwards, so that the module's spot scene stays as it was."""
+    from perceptual_uv.bridge.evaluate import mesh_arrays
+
+    from test_bake_maps import add_normal_map, add_orm, new_image
+    from test_joint_loss import bump_normal_map
+    from test_robustness import textured_grid
+
+    kinds = ("objects", "meshes", "materials", "images", "node_groups")
+    before = {kind: set(getattr(bpy.data, kind)) for kind in kinds}
+    size = 64
+    detail = (np.arange(size) + 0.5) / size < DETAIL_FACES  # texel columns: u
+    obj = textured_grid(f"detail_{request.param}", k=4, image=new_image("flat_base", size, np.full(3, 0.6),
+                                                                          data=False))
+    material = obj.material_slots[0].material
+    if request.param == "normal":
+        rgb = np.empty((size, size, 3))
+        rgb[...] = (0.5, 0.5, 1.0)  # the flat tangent-space normal
+        rgb[:, detail] = bump_normal_map(size)[:, detail]
+        add_normal_map(material, new_image("detail_normal", size, rgb))
+    else:
+        y, x = np.mgrid[0:size, 0:size] + 0.5
+        rgb = np.full((size, size, 3), 0.5)
+        rgb[:, detail, 1] = (0.5 + 0.4 * np.sin(2 * np.pi * x / 8) * np.sin(2 * np.pi * y / 8))[:, detail]
+        add_orm(material, new_image("detail_orm", size, rgb))
+    _, _, uv = mesh_arrays([obj], "UVMap")
+    on_detail = np.flatnonzero(uv[..., 0].max(axis=1) <= DETAIL_FACES + 1e-6)
+    flat = np.flatnonzero(uv[..., 0].min(axis=1) >= 0.7 - 1e-6)
+    assert len(on_detail) == len(flat) == 8  # a column of 4 quads each
+    yield obj, "UVMap", on_detail, flat
+    for kind in reversed(kinds):
+        collection = getattr(bpy.data, kind)
+        for block in set(collection) - before[kind]:
+            collection.remove(block)
+
+
+def test_ours_keeps_the_size_of_triangles_whose_detail_is_only_in_another_map(detail_grid):
+    """The triangle-wise stage of the comparison sees the normal or roughness map (as the product's run): the
+    triangles over the detail keep more than the smallest area, the flat ones shrink to it. With the base
+    colour's luma alone (``ours_luma``, and the comparison before) every triangle shrinks to it."""
+    from perceptual_uv.bridge.evaluate import mesh_arrays
+    from perceptual_uv.core.loss import triangle_problem
+    from perceptual_uv.core.trianglewise import LAMBDA_MIN
+
+    obj, source, on_detail, flat = detail_grid
+    faces = np.concatenate([on_detail, flat])
+    planes = baselines.loss_planes([obj], source_uv=source)
+    assert planes.names[0] == "base_color.luma" and len(planes) > 1  # the flat luma, and the detail's planes
+    run = dict(source_uv=source, epsilon=0.01, evaluations=20, faces=faces)
+    joint, _ = baselines.triangle_targets([obj], **run)
+    area = joint.params[:, 1] * joint.params[:, 2]
+    detail_rows, flat_rows = np.arange(len(on_detail)), np.arange(len(on_detail), len(faces))
+    # Shrunk to the box's corner (lambda_min, lambda_min), a triangle over the detail has E above epsilon; the
+    # result is feasible, so it is not at that corner: its area exceeds lambda_min^2, the least the box allows.
+    V, F, uv = mesh_arrays([obj], source)
+    for face in on_detail:
+        assert triangle_problem(V, F, uv, planes, int(face)).evaluate([0.0, LAMBDA_MIN, LAMBDA_MIN, 0.0])[0] > 0.01
+    assert joint.feasible[detail_rows].all() and not joint.is_constant[detail_rows].any()
+    assert area[detail_rows].min() > LAMBDA_MIN ** 2
+    np.testing.assert_allclose(area[flat_rows], LAMBDA_MIN ** 2, rtol=1e-9)
+    assert area[detail_rows].min() > area[flat_rows].max()
+    # the base colour's luma alone: constant under every view, every triangle at the smallest area
+    luma = baselines.loss_planes([obj], source_uv=source, maps="luma")
+    assert luma.names == ("base_color.luma",)
+    alone, _ = baselines.triangle_targets([obj], planes=luma, **run)
+    assert alone.is_constant.all()
+    np.testing.assert_allclose(alone.params[:, 1] * alone.params[:, 2], LAMBDA_MIN ** 2, rtol=1e-9)
+
+
+def test_the_triangle_cache_key_holds_every_plane_and_its_name(detail_grid, tmp_path, monkeypatch):
+    """A triangle-wise result cached for the luma alone is never taken for the joint loss, nor the reverse."""
+    from perceptual_uv.bridge.evaluate import mesh_arrays
+    from perceptual_uv.core.loss_planes import PlaneStack
+    from perceptual_uv.core.trianglewise import TrianglewiseResult
+
+    obj, source, _, _ = detail_grid
+    V, F, uv = mesh_arrays([obj], source)
+    joint = baselines.loss_planes([obj], source_uv=source)
+    luma = baselines.loss_planes([obj], source_uv=source, maps="luma")
+    key = baselines._triangle_cache_key
+    changed = joint[-1].copy()
+    changed[0, 0] += 1e-3  # one texel of the last plane
+    keys = {key(V, F, uv, joint, epsilon=0.01), key(V, F, uv, luma, epsilon=0.01),
+            key(V, F, uv, PlaneStack(joint, ("renamed",) + joint.names[1:]), epsilon=0.01),
+            key(V, F, uv, PlaneStack(joint[:-1] + (changed,), joint.names), epsilon=0.01)}
+    assert len(keys) == 4
+    assert key(V, F, uv, joint, epsilon=0.01) == key(V, F, uv, PlaneStack(list(joint), joint.names), epsilon=0.01)
+
+    seen = []
+
+    def fake_stage(V, F, uv, planes, **settings):  # stands in for the real stage: records what it saw
+        seen.append(planes.names)
+        k = len(F)
+        return TrianglewiseResult(
+            faces=np.arange(k), params=np.tile([0.0, 1.0, 1.0, 0.0], (k, 1)), loss=np.zeros(k), w_R=np.ones(k),
+            w_S=np.ones(k), evaluations=np.ones(k, np.int64), feasible=np.ones(k, bool),
+            is_constant=np.zeros(k, bool), epsilon=0.01, lambda_min=0.1, formulation="constrained", backend="fast")
+
+    monkeypatch.setattr(baselines, "optimize_triangles", fake_stage)
+    cache = tmp_path / "detail.npz"
+    run = dict(source_uv=source, epsilon=0.01, evaluations=10, cache=cache)
+    baselines.triangle_targets([obj], planes=luma, **run)
+    baselines.triangle_targets([obj], **run)  # the default is the material's planes: not the luma's result
+    baselines.triangle_targets([obj], **run)
+    baselines.triangle_targets([obj], planes=luma, **run)
+    assert seen == [luma.names, joint.names, luma.names]
+
+
+def test_ours_gives_the_triangles_over_the_detail_more_of_the_image(detail_grid):
+    """The mesh-wise stage of the comparison's ours takes the same planes (targets, the choice between the fits,
+    the bound's fractions): after the fit and the packing every triangle over the detail covers more of the new
+    image than any flat one, although all had the same UV area in the input."""
+    from perceptual_uv.bridge.evaluate import mesh_arrays
+    from perceptual_uv.core.charts import signed_uv_areas
+
+    obj, source, on_detail, flat = detail_grid
+    _, _, uv_in = mesh_arrays([obj], source)
+    before = np.abs(signed_uv_areas(uv_in))
+    np.testing.assert_allclose(before[on_detail], before[flat], rtol=1e-5)
+    triangles, _ = baselines.triangle_targets([obj], source_uv=source, epsilon=0.01, evaluations=20)
+    report = baselines.perceptual_uv([obj], source_uv=source, triangles=triangles, name="T_ours")
+    _, _, uv = mesh_arrays([obj], "T_ours")
+    obj.data.uv_layers.remove(obj.data.uv_layers["T_ours"])
+    area = np.abs(signed_uv_areas(uv))
+    assert area[on_detail].min() > area[flat].max()
+    # the flat base colour alone textures nothing: the textured triangles are those the other map shows
+    assert 0 < report["above_bound"]["textured_triangles"] < len(uv)

@@ -213,3 +213,72 @@ def test_the_shaded_comparison_measures_downscale_on_the_input_map_by_memory(spo
     assert "| downscale | 0.3 | 0.300 |" in (out / "spot_triangulated_shaded.md").read_text()
     assert cache.file(spot_obj, "input") != ResultCache(out / "cache", costs=[0.3], screen=512, evaluations=100,
                                                         epsilon=0.01).file(spot_obj, "input")
+
+
+def test_ours_depends_on_how_the_materials_maps_are_read(package):
+    """Ours and its variants read every map of the material (``bridge.material_copy``): a change there
+    recomputes them and no other method."""
+    before = _hashes(package)
+    _edit(package / "bridge" / "material_copy.py", "def read_maps(", "def read_maps(  # changed\n")
+    after = _hashes(package)
+    assert {m for m in before if before[m] != after[m]} == {"ours", "ours_common", "paper", "not_a_listed_method"}
+    kw = dict(costs=[0.3], screen=512, evaluations=100, epsilon=0.01)
+    assert method_settings("ours", **kw)["loss_maps"] == "material"
+    assert method_settings("ours_luma", **kw)["loss_maps"] == "luma"
+    assert method_sources("ours_luma") == method_sources("ours")
+
+
+@pytest.fixture
+def fake_baselines(monkeypatch):
+    """``bridge.baselines`` without Blender's objects: the planes of each kind are fixed stacks, and the
+    triangle-wise and mesh-wise stages record the planes they are given."""
+    pytest.importorskip("bpy")
+    from perceptual_uv.bridge import baselines
+    from perceptual_uv.core.loss_planes import PlaneStack
+
+    rng = np.random.default_rng(0)
+    luma = rng.random((8, 8))
+    stacks = {"material": PlaneStack([luma, rng.random((4, 4))], ["base_color.luma", "normal_tangent.light0"]),
+              "luma": PlaneStack([luma], ["base_color.luma"])}
+    calls = []
+
+    def loss_planes(objects, *, source_uv, maps="material"):
+        calls.append(("planes", maps))
+        return PlaneStack(list(stacks[maps]), stacks[maps].names)  # a new stack each time, as a real read
+
+    def triangle_targets(objects, *, planes, **kw):
+        calls.append(("triangle", planes.names, kw.get("formulation")))
+        return object(), 1.0
+
+    def perceptual_uv(objects, *, triangles, planes, **kw):
+        calls.append(("mesh", planes.names))
+        return {"mesh": 0.5}
+
+    monkeypatch.setattr(baselines, "loss_planes", loss_planes)
+    monkeypatch.setattr(baselines, "triangle_targets", triangle_targets)
+    monkeypatch.setattr(baselines, "perceptual_uv", perceptual_uv)
+    return stacks, calls
+
+
+def test_every_variant_of_ours_sees_the_materials_planes_and_ours_luma_the_luma(fake_baselines):
+    stacks, calls = fake_baselines
+    maps = compare.UVMaps([], "UVMap", evaluations=10, epsilon=0.01, workers=1)
+    for method in ("ours", "ours_common", "paper", "ours_luma", "ours_eps0.02"):
+        maps.make(method)
+    material, luma = stacks["material"].names, stacks["luma"].names
+    assert calls == [("planes", "material"), ("triangle", material, None), ("mesh", material),
+                     ("mesh", material),  # ours_common: ours' triangle-wise result
+                     ("triangle", material, "barrier"), ("mesh", material),  # paper: its own stage, the same maps
+                     ("planes", "luma"), ("triangle", luma, None), ("mesh", luma),
+                     ("triangle", material, None), ("mesh", material)]  # ours at another epsilon
+    assert {"triangle", "triangle_paper", "triangle_luma", "triangle_eps0.02"} <= set(maps.times)
+
+
+def test_ours_luma_reuses_ours_triangles_when_the_material_is_its_luma(fake_baselines):
+    stacks, calls = fake_baselines
+    stacks["material"] = stacks["luma"]  # a material whose only varying map is the base colour
+    maps = compare.UVMaps([], "UVMap", evaluations=10, epsilon=0.01, workers=1)
+    maps.make("ours")
+    maps.make("ours_luma")
+    assert [call[0] for call in calls] == ["planes", "triangle", "mesh", "planes", "mesh"]
+    assert maps.planes("ours_luma") is maps.planes("ours")
