@@ -220,7 +220,8 @@ def _multifrontal_solve(cell_tex, acc, cell_x, cell_y, n_tex, ridge, rhs, leaf_t
     position = np.empty(n_tex, np.int64)
     mark = np.full(n_tex, -1, np.int64)
     gathered = np.empty(n_tex, np.int64)
-    factors = [np.empty((0, 0))] * n_nodes
+    pivot_blocks = [np.empty((0, 0))] * n_nodes
+    couplings = [np.empty((0, 0))] * n_nodes
     boundaries = [np.empty(0, np.int64)] * n_nodes
     # Update matrices waiting for their parent: the trailing block of each child's front, from row and column
     # ``offsets``, with the texels ``front_ids``.
@@ -276,44 +277,66 @@ def _multifrontal_solve(cell_tex, acc, cell_x, cell_y, n_tex, ridge, rhs, leaf_t
         fronts.append(front)
         offsets.append(n_pivots)
         front_ids.append(bound)
-        factors[v] = np.ascontiguousarray(front[:n_pivots, :])
+        pivot_blocks[v] = np.ascontiguousarray(front[:n_pivots, :n_pivots])
+        couplings[v] = np.ascontiguousarray(front[:n_pivots, n_pivots:])
         boundaries[v] = bound
-    for q in range(n_planes):
-        _substitute(factors, boundaries, node_sep, node_hi, postorder, b[q])
-        for t in range(n_tex):
-            rhs[q, t] = b[q, inverse[t]]
+    # Every plane's right-hand side at once: a node's coupling to its boundary is one matrix product (BLAS).
+    x = np.ascontiguousarray(b.T)
+    _substitute(pivot_blocks, couplings, boundaries, node_sep, node_hi, postorder, x)
+    for t in range(n_tex):
+        for q in range(n_planes):
+            rhs[q, t] = x[inverse[t], q]
 
 
 @njit(fastmath=True)
-def _substitute(factors, boundaries, node_sep, node_hi, postorder, x):
-    """Numba: overwrite the right-hand side ``x`` (elimination numbering) with the solution of ``U^T U x = x``,
-    ``U`` the factor rows :func:`_multifrontal_solve` kept per node: forward substitution with ``U^T``
-    children first, then back substitution with ``U`` parents first."""
+def _substitute(pivot_blocks, couplings, boundaries, node_sep, node_hi, postorder, x):
+    """Numba: overwrite the right-hand sides ``x`` (n_tex, P) (rows in elimination numbering) with the solutions
+    of ``U^T U x = x``, ``U`` the factor rows :func:`_multifrontal_solve` kept per node as ``U11`` (its pivot
+    block, ``pivot_blocks``) and ``U12`` (its coupling to the boundary, ``couplings``): forward substitution with
+    ``U^T`` children first, then back substitution with ``U`` parents first. The ``P`` columns share every
+    pass; a node's boundary update is a matrix product."""
+    n_planes = x.shape[1]
     for v in postorder:
         s = node_sep[v]
         n_pivots = node_hi[v] - s
-        factor = factors[v]
+        pivots = pivot_blocks[v]
         bound = boundaries[v]
+        block = np.ascontiguousarray(x[s:s + n_pivots])
         for j in range(n_pivots):
-            y = x[s + j] / factor[j, j]
-            x[s + j] = y
+            inv = 1.0 / pivots[j, j]
+            for q in range(n_planes):
+                block[j, q] *= inv
             for k in range(j + 1, n_pivots):
-                x[s + k] -= factor[j, k] * y
+                u = pivots[j, k]
+                if u != 0.0:
+                    for q in range(n_planes):
+                        block[k, q] -= u * block[j, q]
+        x[s:s + n_pivots] = block
+        if bound.shape[0] > 0 and n_pivots > 0:
+            update = np.dot(couplings[v].T, block)
             for a in range(bound.shape[0]):
-                x[bound[a]] -= factor[j, n_pivots + a] * y
+                for q in range(n_planes):
+                    x[bound[a], q] -= update[a, q]
     for r in range(postorder.shape[0] - 1, -1, -1):
         v = postorder[r]
         s = node_sep[v]
         n_pivots = node_hi[v] - s
-        factor = factors[v]
+        pivots = pivot_blocks[v]
         bound = boundaries[v]
-        outer = np.empty(bound.shape[0])
-        for a in range(bound.shape[0]):
-            outer[a] = x[bound[a]]
-        for j in range(n_pivots - 1, -1, -1):
-            acc = 0.0
-            for k in range(j + 1, n_pivots):
-                acc += factor[j, k] * x[s + k]
+        block = np.ascontiguousarray(x[s:s + n_pivots])
+        if bound.shape[0] > 0 and n_pivots > 0:
+            outer = np.empty((bound.shape[0], n_planes))
             for a in range(bound.shape[0]):
-                acc += factor[j, n_pivots + a] * outer[a]
-            x[s + j] = (x[s + j] - acc) / factor[j, j]
+                for q in range(n_planes):
+                    outer[a, q] = x[bound[a], q]
+            block -= np.dot(couplings[v], outer)
+        for j in range(n_pivots - 1, -1, -1):
+            for k in range(j + 1, n_pivots):
+                u = pivots[j, k]
+                if u != 0.0:
+                    for q in range(n_planes):
+                        block[j, q] -= u * block[k, q]
+            inv = 1.0 / pivots[j, j]
+            for q in range(n_planes):
+                block[j, q] *= inv
+        x[s:s + n_pivots] = block
