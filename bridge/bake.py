@@ -4,9 +4,8 @@
 Colour and data maps (base colour, emissive, metallic-roughness / ORM, occlusion, object- and world-space normal
 maps, any other data) are copied value for value: an Emission shader emits the stored values of the original
 image (a Non-Color float copy) through the original UV map and Cycles bakes EMIT. A tangent-space normal map is
-expressed in its UV map's tangent frame, which the new UV map changes: it is baked as NORMAL (tangent space) from
-a temporary copy of the original material, so the shading normal is the one the material shows, into the tangent
-frame of the new UV map (MikkTSpace, as Blender and glTF viewers compute it).
+expressed in its UV map's tangent frame, which the new UV map changes: :mod:`.bake_normal` bakes it as NORMAL into
+the frame of the new UV map, on the bake pass of this module.
 
 Everything happens on temporary copies in a temporary scene: the object, its mesh, materials, images and the
 user's scene settings are left exactly as they were; the only thing that stays is the new image.
@@ -14,8 +13,8 @@ user's scene settings are left exactly as they were; the only thing that stays i
 Cycles writes only texels whose centres lie in a target triangle inside [0, 1]^2. A target UV map that leaves the
 unit square (renderers sample it with REPEAT) is baked once per integer tile it touches, shifted into the unit
 square, and the tiles are composited into the one image. Texels that bilinear lookups read next to a triangle but
-whose centres no triangle covers (thin strips, charts smaller than a texel) then get the source colour of the
-triangle's nearest point, and the margin extends from all of these.
+whose centres no triangle covers (thin strips, charts smaller than a texel) then get the source value of the
+triangle's nearest point (:func:`_footprints`), and the margin extends from all of these.
 """
 import contextlib
 import dataclasses
@@ -295,21 +294,14 @@ def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel,
     to its centre (:func:`core.footprint.footprint_texels`), read as the bake reads it (bilinear, REPEAT, stored
     values; the constant Base Color for slots without an image). ``pixels`` and ``covered`` are updated.
     """
-    meshes = [read_mesh(obj, uv_name=target_uv) for obj in objects]
     if sources is None:
         sources = [_slot_sources(obj) for obj in objects]
-    rows, columns, face, bary = footprint_texels(np.concatenate([mesh.uv for mesh in meshes]), covered)
-    if not len(face):
-        return
-    start = 0
-    for obj, mesh, object_sources in zip(objects, meshes, sources):
-        mine = (face >= start) & (face < start + len(mesh.F))
-        local = face[mine] - start
-        start += len(mesh.F)
-        if not mine.any():
+    for obj, (mesh, rows, columns, local, bary), object_sources in zip(
+            objects, _footprints(objects, covered, target_uv=target_uv), sources):
+        if not len(local):
             continue
         source = read_mesh(obj, uv_name=source_uv).uv
-        points = np.einsum("pk,pkd->pd", bary[mine], source[local])
+        points = np.einsum("pk,pkd->pd", bary, source[local])
         # Blender clamps material indices beyond the last slot to the last slot
         slot = np.clip(mesh.material_index[local], 0, len(object_sources) - 1)
         values = np.empty((len(local), 4), dtype=np.float32)
@@ -325,8 +317,29 @@ def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel,
         if channel == "ALPHA":
             values[:, :3] = values[:, 3:]
         values[:, 3] = 1.0  # as Cycles writes
-        pixels[rows[mine], columns[mine]] = values
-    covered[rows, columns] = True
+        pixels[rows, columns] = values
+        covered[rows, columns] = True
+
+
+def _footprints(objects, covered, *, target_uv):
+    """Per object, the texels next to its triangles that Cycles left empty (:func:`core.footprint.footprint_texels`
+    over all objects' triangles on ``target_uv``, each texel given to the object of its nearest triangle).
+
+    Returns
+    -------
+    list of tuple
+        Per object ``(mesh, rows, columns, face, bary)``: its :class:`.mesh_io.MeshArrays` read on ``target_uv``;
+        (p,) int64 rows and columns of its texels; (p,) int64 indices of their nearest triangles in ``mesh``;
+        (p, 3) float64 barycentric coordinates of those triangles' points nearest to the texel centres.
+    """
+    meshes = [read_mesh(obj, uv_name=target_uv) for obj in objects]
+    rows, columns, face, bary = footprint_texels(np.concatenate([mesh.uv for mesh in meshes]), covered)
+    found, start = [], 0
+    for mesh in meshes:
+        mine = (face >= start) & (face < start + len(mesh.F))
+        found.append((mesh, rows[mine], columns[mine], face[mine] - start, bary[mine]))
+        start += len(mesh.F)
+    return found
 
 
 def _extend_margin(pixels, covered, margin):
@@ -552,78 +565,6 @@ def _all_nodes(tree):
             yield from _all_nodes(node.node_tree)
 
 
-def _upstream_image(socket):
-    """The image of the Image Texture node linked into ``socket`` (through reroutes), or None."""
-    for link in socket.links:
-        node = link.from_node
-        if node.type == "REROUTE":
-            return _upstream_image(node.inputs[0])
-        if node.type == "TEX_IMAGE":
-            return node.image
-    return None
-
-
-def _normal_material(created, material, source_uv, target, image):
-    """A temporary copy of ``material`` whose shading normal is the one ``image`` gives through its Normal Map
-    node (tangents of ``source_uv``); an Image Texture node holding ``target`` is active.
-
-    When the material's top level has a tangent-space Normal Map node fed by ``image``, the copy's output is a
-    Diffuse BSDF with that node's normal, so a bump or another normal map chained after it is not baked in (the
-    material copy keeps applying those); otherwise the whole material shades. None gives a plain material (the
-    mesh's own normals).
-    """
-    if material is None:
-        copy = bpy.data.materials.new("perceptual_uv_bake_normal")
-        created.append(copy)
-    else:
-        copy = material.copy()
-        created.append(copy)
-        localize_node_groups(copy.node_tree, created)
-        for node in _all_nodes(copy.node_tree):
-            # An empty UV map means the render UV map; the bake's proxy makes that the source map, but the tangent
-            # frame is named explicitly so it can never follow the target map.
-            if node.type == "NORMAL_MAP" and node.space == "TANGENT" and node.uv_map in ("", source_uv):
-                node.uv_map = source_uv
-        tree = copy.node_tree
-        normal_map = next((node for node in tree.nodes if node.type == "NORMAL_MAP" and node.space == "TANGENT"
-                           and not node.mute and _upstream_image(node.inputs["Color"]) == image), None)
-        if normal_map is not None:
-            for node in [node for node in tree.nodes if node.type == "OUTPUT_MATERIAL"]:
-                tree.nodes.remove(node)
-            output = tree.nodes.new("ShaderNodeOutputMaterial")
-            diffuse = tree.nodes.new("ShaderNodeBsdfDiffuse")
-            tree.links.new(normal_map.outputs["Normal"], diffuse.inputs["Normal"])
-            tree.links.new(diffuse.outputs["BSDF"], output.inputs["Surface"])
-            output.is_active_output = True
-    tree = copy.node_tree
-    target_node = tree.nodes.new("ShaderNodeTexImage")
-    target_node.image = target
-    tree.nodes.active = target_node
-    return copy
-
-
-def _bake_normal(objects, record, *, source_uv, target_uv, resolution, margin, tiles):
-    """Bake the shading normals of the slots that read ``record`` as a tangent-space normal map on ``target_uv``.
-
-    Texels next to a triangle that Cycles leaves empty are not filled from the source (its values are in the
-    source map's tangent frame); the margin, from the nearest written texel, covers them.
-    """
-    reads = [_reads(obj, record, source_uv) for obj in objects]
-
-    def material_for(created, object_index, slot_index, target):
-        slots = objects[object_index].material_slots
-        material = slots[slot_index].material if reads[object_index][slot_index] else None
-        return _normal_material(created, material, source_uv, target, record.image)
-
-    pixels, covered = _bake_pass(objects, material_for, source_uv=source_uv, target_uv=target_uv,
-                                 resolution=resolution, tiles=tiles, bake_type="NORMAL",
-                                 slots=[len(slot_reads) for slot_reads in reads])
-    pixels[~covered, :3] = (0.5, 0.5, 1.0)  # flat, where no triangle and no margin reaches
-    pixels[..., 3] = 1.0
-    _extend_margin(pixels, covered, margin)
-    return pixels
-
-
 def _check_objects(objects, source_uv, target_uv, resolution):
     for obj in objects:
         if obj.type != "MESH":
@@ -686,7 +627,9 @@ def bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, names
         occlusion-roughness-metallic image stays one image with all its channels. Tangent-space normal maps
         (``kind`` "normal"): Cycles' NORMAL bake in tangent space (+X, +Y, +Z) of the shading normal of a
         temporary copy of the original material (its Normal Map node reads the tangents of ``source_uv``), in
-        the MikkTSpace frame of ``target_uv``; Non-Color, 8-bit or float as the source.
+        the MikkTSpace frame of ``target_uv``, the texels next to triangles that Cycles leaves empty converted
+        from the source into that frame (:func:`.bake_normal.bake_tangent_normal`); Non-Color, 8-bit or float as
+        the source.
 
     Raises
     ------
@@ -708,7 +651,8 @@ def bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, names
                       tiles=tiles)
         kind = bake_kind(record)
         if kind == "normal":
-            pixels, use_alpha = _bake_normal(objects, record, **common), False
+            from .bake_normal import bake_tangent_normal  # bake_normal builds on this module's bake pass
+            pixels, use_alpha = bake_tangent_normal(objects, record, **common), False
         else:
             sources = _map_sources(objects, record, source_uv)
             if has_transform(record):
