@@ -5,7 +5,8 @@ Colour and data maps (base colour, emissive, metallic-roughness / ORM, occlusion
 maps, any other data) are copied value for value: an Emission shader emits the stored values of the original
 image (a Non-Color float copy) through the original UV map and Cycles bakes EMIT. A tangent-space normal map is
 expressed in its UV map's tangent frame, which the new UV map changes: :mod:`.bake_normal` bakes it as NORMAL into
-the frame of the new UV map, on the bake pass of this module.
+the frame of the new UV map, on the bake pass of this module. Which material slots read a map, and what the others
+contribute, comes from :mod:`.map_reads`.
 
 Everything happens on temporary copies in a temporary scene: the object, its mesh, materials, images and the
 user's scene settings are left exactly as they were; the only thing that stays is the new image.
@@ -26,11 +27,10 @@ import scipy.ndimage
 
 from ..core.footprint import footprint_texels
 from ..core.raster import sample_bilinear
-from .material import base_color_image_node, read_object_materials
+from .map_reads import _map_sources, _reading_records, _slot_sources, bake_kind, has_transform, transform_problem
 from .mesh_io import read_image, read_mesh
 
-__all__ = ["bake_base_color", "bake_maps", "BakeResult", "localize_node_groups", "bake_kind", "has_transform",
-           "transform_problem", "MAX_TILES"]
+__all__ = ["bake_base_color", "bake_maps", "BakeResult", "MAX_TILES"]
 
 MAX_TILES = 64
 
@@ -110,21 +110,6 @@ def _emission_output(tree, target):
     target_node.image = target
     tree.nodes.active = target_node
     return emission
-
-
-def _slot_sources(obj):
-    """Per material slot: (image or None, constant RGBA used when there is no image)."""
-    sources = []
-    for slot in obj.material_slots or [None]:
-        material = slot.material if slot else None
-        node = base_color_image_node(material)
-        constant = (0.8, 0.8, 0.8, 1.0)
-        if node is None and material is not None and material.node_tree is not None:
-            for principled in (n for n in material.node_tree.nodes if n.type == "BSDF_PRINCIPLED"):
-                constant = tuple(principled.inputs["Base Color"].default_value)
-                break
-        sources.append((node.image if node else None, constant))
-    return sources
 
 
 def _has_alpha(image):
@@ -417,17 +402,6 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
 
 # ---- every map of a material -----------------------------------------------------------------------------------
 
-def bake_kind(record):
-    """How a map is baked: ``"normal"`` (a tangent-space normal map, Cycles NORMAL) or ``"emit"`` (values copied)."""
-    return "normal" if record.kind == "tangent_normal" else "emit"
-
-
-# What a slot that does not read a map contributes to that map's image, per role (a slot without a base-colour
-# image bakes its constant Base Color instead, as bake_base_color does).
-_NEUTRAL = {"alpha": (1.0, 1.0, 1.0, 1.0), "occlusion": (1.0, 1.0, 1.0, 1.0),
-            "normal_object": (0.5, 0.5, 1.0, 1.0), "normal_world": (0.5, 0.5, 1.0, 1.0)}
-
-
 @dataclasses.dataclass
 class BakeResult:
     """One baked map: the new ``image``, the source map ``record`` it replaces, and how it was baked.
@@ -446,38 +420,6 @@ class BakeResult:
     record: object
     kind: str
     alpha: bool
-
-
-def _reading_records(obj, record, source_uv):
-    """Per material slot of ``obj``: the slot's own record of ``record.image`` baked the same way, or None."""
-    readings = read_object_materials(obj, source_uv=source_uv) if obj.material_slots else []
-    kind = bake_kind(record)
-    return [next((other for other in reading.maps if other.image == record.image and bake_kind(other) == kind),
-                 None) for reading in readings] or [None]
-
-
-def _reads(obj, record, source_uv):
-    """Per material slot of ``obj``: True when the slot's material reads ``record.image`` the way it is baked."""
-    return [other is not None for other in _reading_records(obj, record, source_uv)]
-
-
-TRANSFORM_NOTE = "(a texture transform)"
-
-
-def has_transform(record):
-    """True when the map's coordinates pass through a texture transform (a Mapping node, vector math, ...)."""
-    return any(TRANSFORM_NOTE in note for note in record.notes)
-
-
-def transform_problem(record):
-    """Why a map read through a texture transform cannot be baked (a sentence), or None.
-
-    Such a map is baked through its own Image Texture node and coordinates in a copy of its material, which
-    needs the node at the material's top level (not inside a node group).
-    """
-    if has_transform(record) and not all(node.id_data.is_embedded_data for node in record.nodes):
-        return "its coordinates pass through a texture transform inside a node group"
-    return None
 
 
 def _transformed_emission(created, material, node_name, channel, target):
@@ -516,53 +458,6 @@ def _bake_transformed(objects, record, sources, *, source_uv, target_uv, resolut
                                  slots=[len(slot_records) for slot_records in per_slot])
     _extend_margin(pixels, covered, margin)
     return pixels
-
-
-def _map_sources(objects, record, source_uv):
-    """(image or None, constant RGBA) per object and slot, for the EMIT bake of ``record``."""
-    sources = []
-    for obj in objects:
-        defaults = _slot_sources(obj) if record.role == "base_color" else None
-        neutral = _NEUTRAL.get(record.role, (0.0, 0.0, 0.0, 1.0))
-        sources.append([(record.image, None) if reads else (None, defaults[index][1] if defaults else neutral)
-                        for index, reads in enumerate(_reads(obj, record, source_uv))])
-    return sources
-
-
-def localize_node_groups(tree, created, *, wanted=("TEX_IMAGE", "NORMAL_MAP", "UVMAP", "TEX_COORD")):
-    """Give every Group node of ``tree`` whose group holds a node of a ``wanted`` type its own copy of the group.
-
-    Material copies share their node groups with the original; a node changed inside a shared group would change
-    the original too. Nested groups are localized the same way. The new groups are appended to ``created``.
-
-    Returns
-    -------
-    bool
-        True when ``tree`` (or a group inside it) holds a node of a ``wanted`` type.
-    """
-    found = False
-    for node in tree.nodes:
-        if node.type in wanted:
-            found = True
-        elif node.type == "GROUP" and node.node_tree is not None and _holds(node.node_tree, wanted):
-            group = node.node_tree.copy()
-            created.append(group)
-            node.node_tree = group
-            localize_node_groups(group, created, wanted=wanted)
-            found = True
-    return found
-
-
-def _holds(tree, wanted):
-    return any(node.type in wanted or (node.type == "GROUP" and node.node_tree is not None
-                                       and _holds(node.node_tree, wanted)) for node in tree.nodes)
-
-
-def _all_nodes(tree):
-    for node in tree.nodes:
-        yield node
-        if node.type == "GROUP" and node.node_tree is not None:
-            yield from _all_nodes(node.node_tree)
 
 
 def _check_objects(objects, source_uv, target_uv, resolution):

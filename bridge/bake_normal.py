@@ -18,8 +18,8 @@ import numpy as np
 
 from ..core.raster import sample_bilinear
 from ..core.tangent_frame import interpolate_frame, object_to_tangent, tangent_to_object
-from .bake import (_all_nodes, _bake_pass, _extend_margin, _footprints, _reads, _temporary_ids, has_transform,
-                   localize_node_groups)
+from .bake import _bake_pass, _extend_margin, _footprints, _temporary_ids
+from .map_reads import _all_nodes, _reads, has_transform, localize_node_groups
 from .mesh_io import read_image, read_mesh
 
 __all__ = ["bake_tangent_normal", "normal_values"]
@@ -94,7 +94,7 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
     objects : sequence of bpy.types.Object
         Mesh objects sharing the new image.
     record : perceptual_uv.bridge.material_roles.MaterialMap
-        A tangent-space normal map (``bake.bake_kind(record) == "normal"``).
+        A tangent-space normal map (``map_reads.bake_kind(record) == "normal"``).
     source_uv, target_uv : str
         The UV map the material reads the map through (its tangent frame) and the one the new image is drawn on.
     resolution : int

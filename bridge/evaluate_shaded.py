@@ -38,8 +38,9 @@ from mathutils import Vector
 
 from ..core.cost import relative_cost, resolution_for_cost
 from ..core.evaluation import perceptual_loss_of_views, symmetric_dirichlet
-from .bake import _reads, bake_kind, bake_maps
+from .bake import bake_maps
 from .evaluate import _dodecahedron_views, checked_inputs, mesh_arrays, reference_resolution
+from .map_reads import _reads, bake_kind
 from .material import read_object_materials
 from .material_copy import _raw_bytes, image_side, map_resolution, material_copies, memory_resolution
 from .render import WorkbenchRenderer
@@ -215,7 +216,7 @@ def material_records(objects, reference_uv):
 
 def _slot_reads(objects, record, reference_uv):
     """Per object, per slot (one False for an object without slots): whether the slot's material reads
-    ``record``'s image the way it is baked (:func:`.bake._reads`, what the bake itself goes by)."""
+    ``record``'s image the way it is baked (:func:`.map_reads._reads`, what the bake itself goes by)."""
     return [_reads(obj, record, reference_uv) for obj in objects]
 
 

@@ -73,7 +73,7 @@ def resolve_source_uv(objects, source_uv):
 def read_maps(objects, source_uv, loss_image):
     """Every map the objects' materials read through ``source_uv``: one record per new image, the loss image's
     first; notes on images left as they are. Refuses (ValueError) maps that cannot be re-baked."""
-    from .bake import bake_kind, transform_problem
+    from .map_reads import bake_kind, transform_problem
 
     records, notes = {}, []
     for obj in objects:
@@ -258,7 +258,7 @@ def material_copies(objects, baked, uv_name, source_uv, created):
     source UV map take their tangents from ``uv_name``: no node of the copy reads ``source_uv``. Node groups
     holding such nodes are copied with the material. Each copy carries :data:`COPY_PROPERTY`.
     """
-    from .bake import _all_nodes, bake_kind, localize_node_groups
+    from .map_reads import _all_nodes, bake_kind, localize_node_groups
 
     copies = {}
     for obj in objects:
