@@ -134,6 +134,9 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
     parser.add_argument("--fresh", action="store_true",
                         help="compute the triangle-wise stage again instead of reusing the results an earlier run "
                              "with the same mesh, UV map, texture and triangle-wise settings kept")
+    parser.add_argument("--bake-in-background", dest="bake_in_background", action="store_true",
+                        help="bake the maps in a background Blender process, as the Optimize UVs button does "
+                             "(the same pixels; it adds the start-up of one more process)")
 
 
 def _add_batch_options(batch):
@@ -208,7 +211,8 @@ def _validate(args):
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
                 screen_pixels=args.screen_pixels, max_screen_pixels=args.max_screen_pixels, margin=args.margin,
                 workers=args.workers, seed=args.seed, reuse_triangle_results=not args.fresh,
-                role_costs=tuple(args.cost_for), cost_measure=args.cost_measure,
+                bake_in_background=args.bake_in_background, role_costs=tuple(args.cost_for),
+                cost_measure=args.cost_measure,
                 scheduler=args.scheduler if args.command == "optimize" else None)
         except ValueError as error:
             raise UsageError(str(error)) from None

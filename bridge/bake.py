@@ -26,11 +26,12 @@ import numpy as np
 import scipy.ndimage
 
 from ..core.footprint import footprint_texels
+from ..core.progress import run_generator
 from ..core.raster import sample_bilinear
 from .map_reads import _map_sources, _reading_records, _slot_sources, bake_kind, has_transform, transform_problem
 from .mesh_io import read_image, read_mesh
 
-__all__ = ["bake_base_color", "bake_maps", "BakeResult", "MAX_TILES"]
+__all__ = ["bake_base_color", "bake_maps", "iter_bake_maps", "bake_map_pixels", "BakeResult", "MAX_TILES"]
 
 MAX_TILES = 64
 
@@ -532,37 +533,81 @@ def bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, names
         A missing UV map, a non-mesh object, a target map spanning more than :data:`MAX_TILES` tiles, or lengths
         that do not match.
     """
+    return run_generator(iter_bake_maps(objects, maps, source_uv=source_uv, target_uv=target_uv,
+                                        resolutions=resolutions, margin=margin, names=names))
+
+
+def iter_bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, names, in_background=False):
+    """Generator form of :func:`bake_maps`: yields ``(done, total)`` maps, returns the list of BakeResult.
+
+    In this process each map's Cycles bake is one uninterrupted call (about a second for a 1-2k map), so the
+    generator yields once per map. With ``in_background`` the bakes run in a background Blender process
+    (:mod:`.bake_process`) on a copy of the objects, and the generator yields every 0.1 s while it works; the
+    pixels are the same, and the new images are made here from them exactly as in this process. Closing the
+    generator stops the background process. On an error or a close, the images made so far are removed again.
+    """
     objects, maps = list(objects), list(maps)
-    resolutions, names = list(resolutions), list(names)
-    margins = list(margin) if np.ndim(margin) else [int(margin)] * len(maps)
+    resolutions, names = [int(resolution) for resolution in resolutions], list(names)
+    margins = [int(value) for value in margin] if np.ndim(margin) else [int(margin)] * len(maps)
     if not len(maps) == len(resolutions) == len(names) == len(margins):
         raise ValueError(f"{len(maps)} maps need as many resolutions, names and margins (got {len(resolutions)}, "
                          f"{len(names)}, {len(margins)})")
-    results = []
-    for record, resolution, name, map_margin in zip(maps, resolutions, names, margins):
-        resolution = int(resolution)
-        tiles = _check_objects(objects, source_uv, target_uv, resolution)
-        common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=int(map_margin),
-                      tiles=tiles)
-        kind = bake_kind(record)
-        if kind == "normal":
-            from .bake_normal import bake_tangent_normal  # bake_normal builds on this module's bake pass
-            pixels, use_alpha = bake_tangent_normal(objects, record, **common), False
+    for resolution in dict.fromkeys(resolutions):  # refused before anything is baked or a process started
+        _check_objects(objects, source_uv, target_uv, resolution)
+    total, results = len(maps), []
+    try:
+        if in_background:
+            from .bake_process import iter_bake_in_background
+
+            baked = yield from iter_bake_in_background(objects, maps, source_uv=source_uv, target_uv=target_uv,
+                                                       resolutions=resolutions, margins=margins)
         else:
-            sources = _map_sources(objects, record, source_uv)
-            if has_transform(record):
-                problem = transform_problem(record)
-                if problem:
-                    raise ValueError(f"map '{record.image.name}' cannot be baked: {problem}")
-                bake = functools.partial(_bake_transformed, objects, record, sources, **common)
+            baked = None
+        for number, (record, resolution, name, map_margin) in enumerate(zip(maps, resolutions, names, margins)):
+            yield (number if baked is None else total), total  # from the child: every map is baked already
+            if baked is None:
+                pixels, use_alpha = bake_map_pixels(objects, record, source_uv=source_uv, target_uv=target_uv,
+                                                    resolution=resolution, margin=map_margin)
             else:
-                bake = functools.partial(_bake_channel, objects, sources=sources, **common)
-            pixels = bake(channel="COLOR")
-            use_alpha = _has_alpha(record.image)
-            if use_alpha:
-                pixels[..., 3] = bake(channel="ALPHA")[..., 0]
-            else:
-                pixels[..., 3] = 1.0
-        image = _new_image(name, pixels, alpha=use_alpha, use_float=record.image.is_float, like=record.image)
-        results.append(BakeResult(image=image, record=record, kind=kind, alpha=use_alpha))
+                pixels, use_alpha = baked[number]
+                baked[number] = None  # the image holds the pixels from here on
+            image = _new_image(name, pixels, alpha=use_alpha, use_float=record.image.is_float, like=record.image)
+            results.append(BakeResult(image=image, record=record, kind=bake_kind(record), alpha=use_alpha))
+    except BaseException:
+        for result in results:
+            with contextlib.suppress(ReferenceError):
+                bpy.data.images.remove(result.image)
+        raise
     return results
+
+
+def bake_map_pixels(objects, record, *, source_uv, target_uv, resolution, margin):
+    """The pixels of one map of :func:`bake_maps`, before they become an image (see there).
+
+    Returns
+    -------
+    pixels : (resolution, resolution, 4) ndarray of float32
+        Not yet clipped to [0, 1].
+    use_alpha : bool
+        True when the alpha channel was baked (the source uses alpha); otherwise alpha is 1.
+    """
+    tiles = _check_objects(objects, source_uv, target_uv, resolution)
+    common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=int(margin), tiles=tiles)
+    if bake_kind(record) == "normal":
+        from .bake_normal import bake_tangent_normal  # bake_normal builds on this module's bake pass
+        return bake_tangent_normal(objects, record, **common), False
+    sources = _map_sources(objects, record, source_uv)
+    if has_transform(record):
+        problem = transform_problem(record)
+        if problem:
+            raise ValueError(f"map '{record.image.name}' cannot be baked: {problem}")
+        bake = functools.partial(_bake_transformed, objects, record, sources, **common)
+    else:
+        bake = functools.partial(_bake_channel, objects, sources=sources, **common)
+    pixels = bake(channel="COLOR")
+    use_alpha = _has_alpha(record.image)
+    if use_alpha:
+        pixels[..., 3] = bake(channel="ALPHA")[..., 0]
+    else:
+        pixels[..., 3] = 1.0
+    return pixels, use_alpha

@@ -413,7 +413,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         from ..core.result_cache import result_key
         from ..core.ssp import iter_ssp_targets
         from ..core.trianglewise import iter_losses_at, iter_losses_of, iter_optimize_triangles
-        from .bake import bake_maps
+        from .bake import iter_bake_maps
 
         started = time.perf_counter()  # the run's times leave out loading the modules
         yield step("read", 0, _READ_STEPS, "Reading the mesh")
@@ -488,9 +488,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         # With the cost in image memory every map's side follows from its own input size; the charts fill the
         # first map's (the loss image's). With the texel cost (Eq. 20-21) the packing sets the side.
         by_memory = settings.resolution is None and settings.cost_measure == "memory"
-        sides = [_memory_side(record, settings) for record in records] if by_memory else None
+        sides_by_memory = [_memory_side(record, settings) for record in records] if by_memory else None
         packing = yield from _pack(mesh.uv, uv_fit, meshwise.topology.face_chart, (width, height), settings,
-                                   step, resolution=sides[0] if by_memory else None)
+                                   step, resolution=sides_by_memory[0] if by_memory else None)
         # What the UV map stores (float32), so the report's figures are those of the saved map.
         uv_out = packing.uv.astype(np.float32).astype(np.float64)
         resolution, coverage = packing.resolution, texel_cost.uv_area(uv_out)
@@ -507,34 +507,48 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         clock = time.perf_counter()
         reference_cost = texel_cost.relative_cost(uv_out, resolution, reference_uv=uv_in,
                                                   reference_resolution=(width, height))
-        baked, bakes = {}, []
         if by_memory and reference_cost > 1:
             notes.append(f"the new {resolution} x {resolution} image has {reference_cost:.2f} times the input's "
                          "texels per surface area (relative texel cost, Eq. 21): the input's islands take "
                          f"{texel_cost.uv_area(uv_in):.0%} of its image. A cost of about "
                          f"{settings.target_cost / reference_cost:.2g} keeps the input's texel density")
+        sides, margins, names = [], [], []
         for number, record in enumerate(records):
             override = role_cost(settings.role_costs, record.role)
             if by_memory:
-                side = sides[number]
+                side = sides_by_memory[number]
             else:
                 side = (resolution if number == 0 and override is None else
                         map_resolution(resolution, image_side(record.image), image_side(image), role_cost=override,
                                        reference_cost=reference_cost))
-            margin = 0 if settings.margin == 0 else max(1, round(settings.margin * side / resolution))
+            sides.append(side)
+            margins.append(0 if settings.margin == 0 else max(1, round(settings.margin * side / resolution)))
             if number == 0:
-                name = settings.image_name or f"{image_stem(image)}_perceptual"
+                names.append(settings.image_name or f"{image_stem(image)}_perceptual")
             elif settings.image_name:
-                name = f"{settings.image_name}_{record.role}"
+                names.append(f"{settings.image_name}_{record.role}")
             else:
-                name = f"{image_stem(record.image)}_perceptual"
-            yield step("bake", number, len(records), f"Baking the {record.role.replace('_', ' ')} map "
-                       f"({number + 1}/{len(records)}): {side} x {side}")
-            (result,) = bake_maps(objects, [record], source_uv=source_uv, target_uv=uv_name, resolutions=[side],
-                                  margin=margin, names=[name])
-            created.images.append(result.image)
-            baked[(record.image.as_pointer(), result.kind)] = result.image
-            bakes.append(result)
+                names.append(f"{image_stem(record.image)}_perceptual")
+        # In the background process (the modal operator) the generator yields every 0.1 s while Cycles bakes;
+        # in this process each map's bake is one step.
+        where = " in a background process" if settings.bake_in_background else ""
+        stage = iter_bake_maps(objects, records, source_uv=source_uv, target_uv=uv_name, resolutions=sides,
+                               margin=margins, names=names, in_background=settings.bake_in_background)
+        with contextlib.closing(stage):  # a cancel stops the background process at once
+            while True:
+                try:
+                    done, total = next(stage)
+                except StopIteration as finished:
+                    bakes = finished.value
+                    break
+                if done < total:
+                    message = (f"Baking the {records[done].role.replace('_', ' ')} map ({done + 1}/{total}){where}: "
+                               f"{sides[done]} x {sides[done]}")
+                else:
+                    message = "Making the new images"
+                yield step("bake", done, total, message)
+        created.images.extend(result.image for result in bakes)
+        baked = {(result.record.image.as_pointer(), result.kind): result.image for result in bakes}
         new_image = bakes[0].image
         times["bake"] = time.perf_counter() - clock
 

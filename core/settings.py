@@ -78,6 +78,11 @@ class OptimizeSettings:
         reference_side``, multiplied by ``sqrt(c / c_ref)`` for an override ``c``, ``c_ref`` the base colour's
         measured relative texel cost, so the map's relative texel cost is ``c``. Roles: :data:`COST_ROLES`
         ("normal" stands for the three normal-map roles); costs in (0, 4].
+    bake_in_background : bool
+        Bake the maps with Cycles in a background Blender process (``bridge.bake_process``) while the pipeline
+        generator keeps yielding every 0.1 s, instead of one uninterrupted bake call per map in this process:
+        the same pixels, for the start-up of one process (a few seconds). The modal operator sets it, so the
+        interface never waits for a bake; the command line and batch bake in their own process by default.
     """
 
     epsilon: float = 0.01
@@ -96,6 +101,7 @@ class OptimizeSettings:
     reuse_triangle_results: bool = True
     scheduler: str | None = None
     role_costs: tuple = ()
+    bake_in_background: bool = False
 
     def __post_init__(self):
         checks = [

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """Operator "Optimize UVs" (``uv.perceptual_optimize``): the whole method behind one button."""
+import dataclasses
 import time
 import traceback
 
@@ -45,11 +46,13 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
             cls.poll_message_set(problem)
         return problem is None
 
-    def _start(self, context):
+    def _start(self, context, *, modal=False):
         from ..bridge.pipeline import optimize_objects
 
         self._previous_mode = context.mode
         settings = settings_from(self)
+        if modal:  # the bake runs in a background process while the modal timer keeps the interface alive
+            settings = dataclasses.replace(settings, bake_in_background=True)
         if context.mode == "EDIT_MESH":
             bpy.ops.object.mode_set(mode="OBJECT")  # edit-mode meshes hold their data in BMesh until left
         return optimize_objects(_objects(context), settings)
@@ -89,7 +92,7 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
             if name != "rna_type" and not self.properties.is_property_set(name):
                 setattr(self, name, getattr(scene_settings, name))
         try:
-            self._pipeline = self._start(context)
+            self._pipeline = self._start(context, modal=True)
         except ValueError as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
