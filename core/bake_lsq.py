@@ -198,7 +198,15 @@ def _envelope_cholesky_solve(env, offset, first, rhs, pivot_floor):
     products vectorize (their summation order changes at round-off level only). Every pivot is at least
     ``pivot_floor`` (:func:`_floored_pivot`).
     """
-    count = rhs.shape[0]
+    _envelope_factorize(env, offset, first, pivot_floor)
+    _envelope_substitute(env, offset, first, rhs)
+
+
+@njit(fastmath=True)
+def _envelope_factorize(env, offset, first, pivot_floor):
+    """Numba: the factorization step of :func:`_envelope_cholesky_solve` alone (``env`` overwritten with
+    ``L``)."""
+    count = offset.shape[0] - 1
     # Row-oriented envelope Cholesky: L[i, j] lives at env[offset[i] + j - first[i]].
     for i in range(count):
         fi = first[i]
@@ -214,7 +222,6 @@ def _envelope_cholesky_solve(env, offset, first, rhs, pivot_floor):
         for k in range(fi, i):
             s += env[bi + k] * env[bi + k]
         env[bi + i] = np.sqrt(_floored_pivot(env[bi + i] - s, pivot_floor))
-    _envelope_substitute(env, offset, first, rhs)
 
 
 @njit(fastmath=True)
@@ -240,6 +247,35 @@ def _envelope_substitute(env, offset, first, rhs):
 
 
 @njit(fastmath=True)
+def _envelope_substitute_planes(env, offset, first, x):
+    """Numba: :func:`_envelope_substitute` for the ``P`` right-hand sides in the columns of ``x`` (count, P) at
+    once, every factor entry read once for all of them."""
+    count, n_planes = x.shape
+    s = np.empty(n_planes)
+    for i in range(count):
+        fi = first[i]
+        bi = offset[i] - fi
+        s[:] = 0.0
+        for k in range(fi, i):
+            u = env[bi + k]
+            for q in range(n_planes):
+                s[q] += u * x[k, q]
+        d = env[bi + i]
+        for q in range(n_planes):
+            x[i, q] = (x[i, q] - s[q]) / d
+    for i in range(count - 1, -1, -1):
+        fi = first[i]
+        bi = offset[i] - fi
+        d = env[bi + i]
+        for q in range(n_planes):
+            x[i, q] /= d
+        for k in range(fi, i):
+            u = env[bi + k]
+            for q in range(n_planes):
+                x[k, q] -= u * x[i, q]
+
+
+@njit(fastmath=True)
 def _band_cholesky_solve(band, rhs, pivot_floor):
     """Numba: solve with a symmetric band matrix, ``band[j, d] = A[j + d, j]`` (lower band, column-major).
 
@@ -248,6 +284,14 @@ def _band_cholesky_solve(band, rhs, pivot_floor):
     ``band`` is overwritten with ``L``; ``rhs`` with the solution. Every pivot is at least ``pivot_floor``
     (:func:`_floored_pivot`).
     """
+    _band_factorize(band, pivot_floor)
+    _band_substitute(band, rhs)
+
+
+@njit(fastmath=True)
+def _band_factorize(band, pivot_floor):
+    """Numba: the factorization step of :func:`_band_cholesky_solve` alone (``band`` overwritten with
+    ``L``)."""
     count, width = band.shape
     b = width - 1
     for j in range(count):
@@ -264,7 +308,6 @@ def _band_cholesky_solve(band, rhs, pivot_floor):
             row = j + k1
             for k2 in range(k1, m + 1):
                 band[row, k2 - k1] -= band[j, k2] * l1
-    _band_substitute(band, rhs)
 
 
 @njit(fastmath=True)
@@ -286,6 +329,35 @@ def _band_substitute(band, rhs):
         for k in range(1, m + 1):
             s += band[j, k] * rhs[j + k]
         rhs[j] = (rhs[j] - s) / band[j, 0]
+
+
+@njit(fastmath=True)
+def _band_substitute_planes(band, x):
+    """Numba: :func:`_band_substitute` for the ``P`` right-hand sides in the columns of ``x`` (count, P) at
+    once, every factor entry read once for all of them."""
+    count, width = band.shape
+    n_planes = x.shape[1]
+    b = width - 1
+    s = np.empty(n_planes)
+    for j in range(count):
+        d = band[j, 0]
+        for q in range(n_planes):
+            x[j, q] /= d
+        m = min(b, count - 1 - j)
+        for k in range(1, m + 1):
+            u = band[j, k]
+            for q in range(n_planes):
+                x[j + k, q] -= u * x[j, q]
+    for j in range(count - 1, -1, -1):
+        m = min(b, count - 1 - j)
+        s[:] = 0.0
+        for k in range(1, m + 1):
+            u = band[j, k]
+            for q in range(n_planes):
+                s[q] += u * x[j + k, q]
+        d = band[j, 0]
+        for q in range(n_planes):
+            x[j, q] = (x[j, q] - s[q]) / d
 
 
 @njit

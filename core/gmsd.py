@@ -221,15 +221,18 @@ def _pooled_index(pixel, n):
 @njit
 def _extend_cells(sums, counts, size, value, queue):
     """Numba: ``value`` = mean of the covered pixels per cell of a flat (size, size) grid, and for cells without
-    one the value of the cell they are first reached from, breadth-first from all covered cells at once."""
+    one the value of the cell they are first reached from, breadth-first from all covered cells at once.
+
+    Which cells are reached is kept apart from their values, so a NaN mean (a NaN render) stays in its cell and
+    spreads to the cells filled from it, and every cell enters ``queue`` (of ``size * size``) once."""
+    reached = np.zeros(size * size, np.bool_)
     tail = 0
     for k in range(size * size):
         if counts[k] > 0:
             value[k] = sums[k] / counts[k]
+            reached[k] = True
             queue[tail] = k
             tail += 1
-        else:
-            value[k] = np.nan
     if tail == 0:
         value[:] = 0.0
         return
@@ -244,7 +247,8 @@ def _extend_cells(sums, counts, size, value, queue):
             b = j + (1 if step == 2 else -1 if step == 3 else 0)
             if 0 <= a < size and 0 <= b < size:
                 q = a * size + b
-                if np.isnan(value[q]):
+                if not reached[q]:
+                    reached[q] = True
                     value[q] = value[k]
                     queue[tail] = q
                     tail += 1
@@ -270,6 +274,94 @@ def _covered_gradient_kernel(sums, counts, m, out, value, queue):
     for i in range(m):
         for j in range(m):
             out[i * m + j] = _prewitt_at(value, size, i, j)
+
+
+@njit
+def _extension_plan(counts, m):
+    """Numba: how :func:`_extend_cells` fills a flat (m + 2)^2 grid with these ``counts``, as a plan that
+    :func:`_covered_gmsd_planned` replays for any sums.
+
+    The breadth-first fill depends on which cells have a covered pixel only, not on their values, so screens
+    that share the covered pixels (every plane and every deformation of one triangle) share it. Returns
+    ``covered`` (the cells with a count, row-major), ``inner`` (the flat inner indices ``i * m + j`` of those
+    among them that lie inside the border, row-major) and ``fill`` (k, 2): in this order,
+    ``value[fill[r, 0]] = value[fill[r, 1]]`` gives every other cell the value :func:`_extend_cells` gives it.
+    """
+    size = m + 2
+    reached = np.zeros(size * size, np.bool_)
+    queue = np.empty(size * size, np.int64)
+    tail = 0
+    for k in range(size * size):
+        if counts[k] > 0:
+            reached[k] = True
+            queue[tail] = k
+            tail += 1
+    covered = queue[:tail].copy()
+    n_inner = 0
+    for i in range(m):
+        for j in range(m):
+            if counts[(i + 1) * size + j + 1] > 0:
+                n_inner += 1
+    inner = np.empty(n_inner, np.int64)
+    n_inner = 0
+    for i in range(m):
+        for j in range(m):
+            if counts[(i + 1) * size + j + 1] > 0:
+                inner[n_inner] = i * m + j
+                n_inner += 1
+    fill = np.empty((size * size - tail, 2), np.int64)
+    n_fill = 0
+    head = 0
+    while head < tail:
+        k = queue[head]
+        head += 1
+        i = k // size
+        j = k - i * size
+        for step in range(4):
+            a = i + (1 if step == 0 else -1 if step == 1 else 0)
+            b = j + (1 if step == 2 else -1 if step == 3 else 0)
+            if 0 <= a < size and 0 <= b < size:
+                q = a * size + b
+                if not reached[q]:
+                    reached[q] = True
+                    fill[n_fill, 0] = q
+                    fill[n_fill, 1] = k
+                    n_fill += 1
+                    queue[tail] = q
+                    tail += 1
+    return covered, inner, fill[:n_fill]
+
+
+@njit
+def _covered_gmsd_planned(sums, counts, m, reference_gradient, c, value, covered, inner, fill, gms):
+    """Numba: :func:`_covered_gmsd_kernel` (the same value, bit for bit) with the cells' fill replayed from
+    :func:`_extension_plan` of ``counts`` instead of searched; ``gms`` is workspace of at least
+    ``len(inner)``."""
+    size = m + 2
+    if covered.shape[0] == 0:
+        return 0.0
+    for r in range(covered.shape[0]):
+        k = covered[r]
+        value[k] = sums[k] / counts[k]
+    for r in range(fill.shape[0]):
+        value[fill[r, 0]] = value[fill[r, 1]]
+    n = inner.shape[0]
+    if n == 0:
+        return 0.0
+    total = 0.0
+    for r in range(n):
+        ij = inner[r]
+        i = ij // m
+        j = ij - i * m
+        mr = reference_gradient[ij]
+        md = _prewitt_at(value, size, i, j)
+        gms[r] = (2.0 * mr * md + c) / (mr * mr + md * md + c)
+        total += gms[r]
+    mean = total / n
+    var = 0.0
+    for r in range(n):
+        var += (gms[r] - mean) ** 2
+    return np.sqrt(var / n)
 
 
 @njit

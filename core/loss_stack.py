@@ -3,8 +3,13 @@
 Planes of the same shape see the same texel-space points under a triangle's view and the same deformation,
 so the screen operator of Eq. 8-9, the re-bake's normal equations (Eq. 11) and their Cholesky factor are the
 same for all of them; only the right-hand sides (each plane's reference render) differ. One evaluation of
-``P`` such planes pools the pixels into texel cells once, orders and factorizes once, and substitutes,
-renders and takes GMSD (Eq. 3, 5) per plane (:func:`_evaluate_planes_kernel`). The single-map loss
+``P`` such planes pools the pixels into texel cells once, orders and factorizes once, and per plane only
+substitutes, renders and takes GMSD (Eq. 3, 5) (:func:`_evaluate_planes_kernel`). The per-plane work is done
+for all planes in one pass wherever a pass reads shared data: the right-hand sides of planes after the first in
+one sweep over the pixels, the substitutions in one pass over the factor (planes side by side), the renders
+and the screens' pooled sums in one pass over the pixels, and the GMSD's fill of uncovered cells, which
+depends on the covered pixels only, planned once per call of two screens or more
+(:func:`.gmsd._extension_plan`). The single-map loss
 (:func:`.loss._evaluate_kernel`) is the case P = 1; :class:`.loss_planes.StackProblem` groups its active
 planes by shape and calls this for every group of two or more.
 
@@ -25,10 +30,11 @@ Sun et al. 2022, Eq. 3, 5, 8-11.
 import numpy as np
 
 from ._jit import njit
-from .bake_lsq import (_apply_renumber, _band_cholesky_solve, _band_substitute, _envelope_cholesky_solve,
-                       _envelope_first, _envelope_substitute, _first_occurrence_ids, _group_by_component,
-                       _render_ids, _solve_normal_equations)
-from .gmsd import _covered_gmsd_kernel
+from .bake_lsq import (_apply_renumber, _band_cholesky_solve, _band_factorize, _band_substitute_planes,
+                       _envelope_cholesky_solve, _envelope_factorize, _envelope_first,
+                       _envelope_substitute_planes, _first_occurrence_ids, _group_by_component, _render_ids,
+                       _solve_normal_equations)
+from .gmsd import _covered_gmsd_kernel, _covered_gmsd_planned, _extension_plan
 from .multifrontal import _multifrontal_solve
 
 __all__ = []
@@ -131,8 +137,9 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
 
     ``references`` (P, count) holds each plane's reference render at the points, ``rendered`` (P, count)
     receives the re-baked renders: the planes share the pooling, the ordering and the Cholesky factor, one
-    right-hand side each (:func:`.bake_lsq._band_substitute`, :func:`.bake_lsq._envelope_substitute`). One
-    plane (P = 1) is the single-map loss.
+    right-hand side each, substituted for all planes in one pass over the factor
+    (:func:`.bake_lsq._band_substitute_planes`, :func:`.bake_lsq._envelope_substitute_planes`,
+    :func:`.multifrontal._substitute`). One plane (P = 1) is the single-map loss.
 
     Pixels whose deformed points fall in the same texel cell (same 4 texels) are pooled first: each cell
     keeps the sums of its 10 weight products and of 4 weighted targets per plane, so the normal equations
@@ -218,61 +225,80 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
             last_cell = cell
         pix_cell[p] = c
     # Per-cell sums of the bilinear weight products and, per plane, of the 4 weighted targets (the right-hand
-    # sides); runs of pixels in one cell are summed in registers. One sweep per plane, the first one takes the
-    # weight products too. The weights are (1 - fx, fx) x (1 - fy, fy), so the 10 products are 9 distinct
-    # products of the 3 entries of each factor's outer product (w0 w3 == w1 w2).
-    for q in range(n_planes):
-        first_sweep = q == 0
-        col = 10 + 4 * q
+    # sides); runs of pixels in one cell are summed in registers. The first sweep takes the weight products and
+    # the first plane, a second one every further plane. The weights are (1 - fx, fx) x (1 - fy, fy), so the 10
+    # products are 9 distinct products of the 3 entries of each factor's outer product (w0 w3 == w1 w2).
+    c = pix_cell[0]
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
+    for p in range(count + 1):
+        if p == count or pix_cell[p] != c:
+            acc[c, 0] += s0
+            acc[c, 1] += s1
+            acc[c, 2] += s2
+            acc[c, 3] += s3
+            acc[c, 4] += s4
+            acc[c, 5] += s5
+            acc[c, 6] += s6
+            acc[c, 8] += s8
+            acc[c, 9] += s9
+            acc[c, 10] += s10
+            acc[c, 11] += s11
+            acc[c, 12] += s12
+            acc[c, 13] += s13
+            if p == count:
+                break
+            s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
+            c = pix_cell[p]
+        fx = frac[p, 0]
+        fy = frac[p, 1]
+        gx0 = 1.0 - fx
+        gy0 = 1.0 - fy
+        xa = gx0 * gx0
+        xb = gx0 * fx
+        xc = fx * fx
+        ya = gy0 * gy0
+        yb = gy0 * fy
+        yc = fy * fy
+        s0 += xa * ya
+        s1 += xc * ya
+        s2 += xa * yc
+        s3 += xc * yc
+        s4 += xb * ya
+        s5 += xa * yb
+        s6 += xb * yb
+        s8 += xc * yb
+        s9 += xb * yc
+        t = references[0, p]
+        tx0 = t * gx0
+        tx1 = t * fx
+        s10 += tx0 * gy0
+        s11 += tx1 * gy0
+        s12 += tx0 * fy
+        s13 += tx1 * fy
+    if n_planes > 1:
+        run = np.zeros(4 * (n_planes - 1))
         c = pix_cell[0]
-        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
         for p in range(count + 1):
             if p == count or pix_cell[p] != c:
-                if first_sweep:
-                    acc[c, 0] += s0
-                    acc[c, 1] += s1
-                    acc[c, 2] += s2
-                    acc[c, 3] += s3
-                    acc[c, 4] += s4
-                    acc[c, 5] += s5
-                    acc[c, 6] += s6
-                    acc[c, 8] += s8
-                    acc[c, 9] += s9
-                acc[c, col] += s10
-                acc[c, col + 1] += s11
-                acc[c, col + 2] += s12
-                acc[c, col + 3] += s13
+                for r in range(run.shape[0]):
+                    acc[c, 14 + r] += run[r]
+                    run[r] = 0.0
                 if p == count:
                     break
-                s0 = s1 = s2 = s3 = s4 = s5 = s6 = s8 = s9 = s10 = s11 = s12 = s13 = 0.0
                 c = pix_cell[p]
             fx = frac[p, 0]
             fy = frac[p, 1]
             gx0 = 1.0 - fx
             gy0 = 1.0 - fy
-            if first_sweep:
-                xa = gx0 * gx0
-                xb = gx0 * fx
-                xc = fx * fx
-                ya = gy0 * gy0
-                yb = gy0 * fy
-                yc = fy * fy
-                s0 += xa * ya
-                s1 += xc * ya
-                s2 += xa * yc
-                s3 += xc * yc
-                s4 += xb * ya
-                s5 += xa * yb
-                s6 += xb * yb
-                s8 += xc * yb
-                s9 += xb * yc
-            t = references[q, p]
-            tx0 = t * gx0
-            tx1 = t * fx
-            s10 += tx0 * gy0
-            s11 += tx1 * gy0
-            s12 += tx0 * fy
-            s13 += tx1 * fy
+            for q in range(1, n_planes):
+                t = references[q, p]
+                tx0 = t * gx0
+                tx1 = t * fx
+                r = 4 * (q - 1)
+                run[r] += tx0 * gy0
+                run[r + 1] += tx1 * gy0
+                run[r + 2] += tx0 * fy
+                run[r + 3] += tx1 * fy
     # Texels touched, numbered along the shorter side of the texel box (ordering A); in sparse boxes, row by
     # row (sorted keys), then grouped by connected component below.
     tw = width + 1
@@ -380,9 +406,14 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
             band[min(t2, t3), abs(t2 - t3)] += acc[c, 9]
         for i in range(n_tex):
             band[i, 0] += ridge
-        _band_cholesky_solve(band, rhs[0], ridge)
-        for q in range(1, n_planes):
-            _band_substitute(band, rhs[q])
+        if n_planes == 1:
+            _band_cholesky_solve(band, rhs[0], ridge)
+        else:
+            # Every plane's right-hand side in one pass over the factor, the planes side by side.
+            _band_factorize(band, ridge)
+            x = np.ascontiguousarray(rhs.T)
+            _band_substitute_planes(band, x)
+            rhs[:, :] = x.T
     else:
         offset = np.empty(n_tex + 1, np.int64)
         offset[0] = 0
@@ -404,20 +435,35 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
             _add_off_diagonal(env, offset, first, t2, t3, acc[c, 9])
         for i in range(n_tex):
             env[offset[i + 1] - 1] += ridge
-        _envelope_cholesky_solve(env, offset, first, rhs[0], ridge)
-        for q in range(1, n_planes):
-            _envelope_substitute(env, offset, first, rhs[q])
-    cell_value = np.empty((n_cells, 4))
-    for q in range(n_planes):
-        for c in range(n_cells):
+        if n_planes == 1:
+            _envelope_cholesky_solve(env, offset, first, rhs[0], ridge)
+        else:
+            _envelope_factorize(env, offset, first, ridge)
+            x = np.ascontiguousarray(rhs.T)
+            _envelope_substitute_planes(env, offset, first, x)
+            rhs[:, :] = x.T
+    # Render every plane in one pass over the pixels: the cells' 4 texel values of all planes side by side.
+    cell_value = np.empty((n_cells, 4 * n_planes))
+    for c in range(n_cells):
+        for q in range(n_planes):
             for k in range(4):
-                cell_value[c, k] = rhs[q, cell_tex[c, k]]
+                cell_value[c, 4 * q + k] = rhs[q, cell_tex[c, k]]
+    if n_planes == 1:
         for p in range(count):
             c = pix_cell[p]
             fx = frac[p, 0]
             fy = frac[p, 1]
-            rendered[q, p] = ((1.0 - fx) * ((1.0 - fy) * cell_value[c, 0] + fy * cell_value[c, 2])
+            rendered[0, p] = ((1.0 - fx) * ((1.0 - fy) * cell_value[c, 0] + fy * cell_value[c, 2])
                               + fx * ((1.0 - fy) * cell_value[c, 1] + fy * cell_value[c, 3]))
+        return True
+    for p in range(count):
+        c = pix_cell[p]
+        fx = frac[p, 0]
+        fy = frac[p, 1]
+        for q in range(n_planes):
+            r = 4 * q
+            rendered[q, p] = ((1.0 - fx) * ((1.0 - fy) * cell_value[c, r] + fy * cell_value[c, r + 2])
+                              + fx * ((1.0 - fy) * cell_value[c, r + 1] + fy * cell_value[c, r + 3]))
     return True
 
 
@@ -434,13 +480,19 @@ def _evaluate_planes_kernel(params, points, pooled_index, box, references, refer
     count = points.shape[0]
     rendered = np.empty((n_planes, count))
     size = (m + 2) * (m + 2)
-    sums = np.empty(size)
     counts = np.zeros(size)
     for p in range(count):
         counts[pooled_index[p]] += 1.0
     flat_gradients = reference_gradients.copy().reshape(n_planes, m * m)
     value = np.empty(size)
     queue = np.empty(size, np.int64)
+    # Every screen of this call has the same covered pixels: the empty cells' fill is planned once when there
+    # are two screens or more (planning costs about one search, replaying a fraction of one).
+    planned = k * n_planes > 1
+    covered, inner, fill = _extension_plan(counts, m) if planned else (queue[:0], queue[:0],
+                                                                         np.empty((0, 2), np.int64))
+    gms = np.empty(inner.shape[0])
+    plane_sums = np.empty((n_planes, size))
     for s in range(k):
         alpha, l1, l2, beta = params[s, 0], params[s, 1], params[s, 2], params[s, 3]
         ca, sa = np.cos(alpha), np.sin(alpha)
@@ -460,9 +512,20 @@ def _evaluate_planes_kernel(params, points, pooled_index, box, references, refer
             for q in range(n_planes):
                 values = _solve_normal_equations(ids, weights, references[q], texel.shape[0], ridge)
                 rendered[q, :] = _render_ids(ids, weights, values)
-        for q in range(n_planes):
-            sums[:] = 0.0
+        plane_sums[:] = 0.0
+        if n_planes == 1:
             for p in range(count):
-                sums[pooled_index[p]] += rendered[q, p]
-            out[s, q] = _covered_gmsd_kernel(sums, counts, m, flat_gradients[q], c_gmsd, value, queue)
+                plane_sums[0, pooled_index[p]] += rendered[0, p]
+        else:
+            for p in range(count):
+                cell = pooled_index[p]
+                for q in range(n_planes):
+                    plane_sums[q, cell] += rendered[q, p]
+        for q in range(n_planes):
+            if planned:
+                out[s, q] = _covered_gmsd_planned(plane_sums[q], counts, m, flat_gradients[q], c_gmsd, value,
+                                                  covered, inner, fill, gms)
+            else:
+                out[s, q] = _covered_gmsd_kernel(plane_sums[q], counts, m, flat_gradients[q], c_gmsd, value,
+                                                 queue)
     return out

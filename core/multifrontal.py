@@ -206,16 +206,21 @@ def _multifrontal_solve(cell_tex, acc, cell_x, cell_y, n_tex, ridge, rhs, leaf_t
     # its entry with the texel at offset (dx, dy), ``neighbour`` that texel (-1 if none); slot 4 the diagonal.
     stencil = np.zeros((n_tex, 9))
     neighbour = np.full((n_tex, 9), -1, np.int64)
-    b = np.zeros((n_planes, n_tex))
+    # The right-hand sides (n_tex, P) in elimination numbering, the planes side by side (as the substitution
+    # takes them).
+    x = np.zeros((n_tex, n_planes))
+    ids = np.empty(4, np.int64)
     for c in range(n_cells):
+        for k in range(4):
+            ids[k] = inverse[cell_tex[c, k]]
         for k1 in range(4):
-            i = inverse[cell_tex[c, k1]]
+            i = ids[k1]
             for q in range(n_planes):
-                b[q, i] += acc[c, 10 + 4 * q + k1]
+                x[i, q] += acc[c, 10 + 4 * q + k1]
             for k2 in range(4):
                 slot = ((k2 >> 1) - (k1 >> 1) + 1) * 3 + (k2 & 1) - (k1 & 1) + 1
                 stencil[i, slot] += acc[c, _PAIR_COLUMN[k1 * 4 + k2]]
-                neighbour[i, slot] = inverse[cell_tex[c, k2]]
+                neighbour[i, slot] = ids[k2]
     n_nodes = node_lo.shape[0]
     position = np.empty(n_tex, np.int64)
     mark = np.full(n_tex, -1, np.int64)
@@ -281,7 +286,6 @@ def _multifrontal_solve(cell_tex, acc, cell_x, cell_y, n_tex, ridge, rhs, leaf_t
         couplings[v] = np.ascontiguousarray(front[:n_pivots, n_pivots:])
         boundaries[v] = bound
     # Every plane's right-hand side at once: a node's coupling to its boundary is one matrix product (BLAS).
-    x = np.ascontiguousarray(b.T)
     _substitute(pivot_blocks, couplings, boundaries, node_sep, node_hi, postorder, x)
     for t in range(n_tex):
         for q in range(n_planes):
