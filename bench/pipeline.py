@@ -3,15 +3,20 @@
 Usage::
 
     .venv/bin/python bench/pipeline.py --models ../shared/models/spot ../shared/models/bob \
-        [--against REV] [--workers 2] [--iterations 100] [--json OUT.json]
+        [--against REV] [--workers 2] [--iterations 100] [--operator] [--set NAME=VALUE ...] [--json OUT.json]
 
 Each model runs in a fresh process (``--models`` takes model folders or files) at the default settings, driving
 the pipeline generator the way the modal operator does: one ``next`` per step. Printed per model and revision:
 the stage times of the report (``read`` is everything before the triangle-wise stage), the triangle-wise stage
 in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
-freezes for as long as one step takes; the five longest, with the message of the step they follow, go to
-``--json``), and the peak resident memory of the run's whole process tree (the
-pipeline process and its worker processes, sampled every 0.1 s).
+freezes for as long as one step takes), and the peak resident memory of the run's whole process tree (the
+pipeline process and its worker processes, sampled every 0.1 s); below each row, the five longest steps with the
+stage and message of the progress report they follow (also in ``--json``).
+
+``--operator`` runs with the settings the modal operator adds to the defaults (``bake_in_background``), the way
+"Optimize UVs" drives the pipeline in the interface; ``--set NAME=VALUE`` sets any field of
+``core.settings.OptimizeSettings`` (the value read as a Python literal, else as a string). A revision whose
+``OptimizeSettings`` lacks a field runs without it.
 
 With ``--against REV`` the same models also run on another git revision of this repository, checked out once
 into a worktree under the system's temporary folder, in the same session, alternating revision by revision per
@@ -46,6 +51,11 @@ def model_file(path):
     return files[0]
 
 
+def _tuples(value):
+    """``value`` with JSON's lists turned back into the tuples the frozen settings hold."""
+    return tuple(_tuples(item) for item in value) if isinstance(value, list) else value
+
+
 def run_pipeline(path, settings_options):
     """Optimize ``path`` in this process, driving the generator step by step; a dict of measurements.
 
@@ -64,7 +74,7 @@ def run_pipeline(path, settings_options):
     objects = textured_objects()
     imported = time.perf_counter() - started
     output_dir = tempfile.TemporaryDirectory(prefix="perceptual_uv-bench-")
-    known = {name: value for name, value in settings_options.items()  # an older revision may lack a setting
+    known = {name: _tuples(value) for name, value in settings_options.items()  # an older revision may lack one
              if name in OptimizeSettings.__dataclass_fields__}
     pipeline = optimize_objects(objects, OptimizeSettings(**known), output_dir=output_dir.name)
     durations = []  # (seconds, stage and message of the step's start)
@@ -166,6 +176,27 @@ def worktree(revision):
     return folder, commit[:12]
 
 
+OPERATOR_SETTINGS = {"bake_in_background": True}  # what operators.optimize_uvs adds when it runs modal
+
+
+def setting_option(text):
+    """``NAME=VALUE`` of ``--set`` as ``(name, value)``, the value a Python literal if it reads as one."""
+    import ast
+
+    name, separator, value = text.partition("=")
+    if not separator or not name.isidentifier():
+        raise argparse.ArgumentTypeError(f"{text!r}: expected NAME=VALUE")
+    try:
+        return name, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return name, value
+
+
+def _steps(result):
+    """The five longest steps of ``result``, one line each."""
+    return [f"      {seconds:6.3f} s  {where[:110]}" for seconds, where in result.get("longest_steps", [])]
+
+
 def _row(label, result):
     times = result["times_s"]
     stages = " ".join(f"{name} {times.get(name, float('nan')):7.1f}" for name in STAGES)
@@ -190,6 +221,10 @@ def main(argv=None):
     parser.add_argument("--against", help="another git revision to measure in the same run")
     parser.add_argument("--workers", type=int, default=0, help="worker processes (0: one per core)")
     parser.add_argument("--iterations", type=int, default=None, help="evaluations per face (default: the default)")
+    parser.add_argument("--operator", action="store_true",
+                        help="the settings of the modal operator (bake in a background process)")
+    parser.add_argument("--set", dest="overrides", action="append", type=setting_option, default=[],
+                        metavar="NAME=VALUE", help="set a field of OptimizeSettings (repeatable)")
     parser.add_argument("--no-warmup", action="store_true", help="skip the compile warm-up run per revision")
     parser.add_argument("--json", type=pathlib.Path, help="write all measurements here")
     parser.add_argument("--run-one", help=argparse.SUPPRESS)
@@ -206,6 +241,9 @@ def main(argv=None):
     settings = {"workers": args.workers, "reuse_triangle_results": False}
     if args.iterations is not None:
         settings["iterations"] = args.iterations
+    if args.operator:
+        settings.update(OPERATOR_SETTINGS)
+    settings.update(args.overrides)
     models = []
     for path in args.models:
         if not pathlib.Path(path).exists():
@@ -227,6 +265,7 @@ def main(argv=None):
             result = measure(tree, path, settings)
             results.setdefault(path.parent.name, {})[label] = result
             print(_row(label, result), flush=True)
+            print("\n".join(_steps(result)), flush=True)
         if args.against:
             print(_ratio_row(results[path.parent.name]["this"], results[path.parent.name][trees[1][0]]), flush=True)
     if args.json:

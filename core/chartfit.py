@@ -118,7 +118,14 @@ def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scal
 
 def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100,
                     fold_tolerance=FOLD_TOLERANCE):
-    """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`."""
+    """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`.
+
+    Per fit it yields after every solver iteration, once more before and once after the fold restore and the
+    chart turns (:func:`finish_charts`, whole-mesh work that would otherwise share a step with the solver's last
+    iteration and the measurement's start), while ``measure`` runs if it is a generator, and when the fit's
+    losses are in; choosing the charts' fits is the step after the last yield. A modal operator that calls
+    ``next`` once per timer tick thus never waits for more than one of these parts at a time.
+    """
     F = np.asarray(F)
     uv = np.asarray(uv, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
@@ -139,8 +146,10 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                 fit = finished.value
                 break
             yield index * steps + done, 2 * steps
+        yield (index + 1) * steps - 1, 2 * steps  # the fold restore and the turns are a step of their own
         fitted, restored, angles = finish_charts(uv, fit.uv, chart, alpha=targets[:, 0], w_R=w_R,
                                                  texel_scale=texel_scale, fold_tolerance=fold_tolerance)
+        yield (index + 1) * steps - 1, 2 * steps  # and so is the start of the measurement
         measured = measure(fitted)
         if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs
             while True:

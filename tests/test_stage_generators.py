@@ -118,3 +118,44 @@ def test_closing_the_stage_while_its_worker_pool_starts_stops_the_workers(monkey
     while set(multiprocessing.active_children()) - before and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not set(multiprocessing.active_children()) - before
+
+
+def test_fit_charts_gives_the_chart_finish_a_step_of_its_own(monkeypatch):
+    # The fold restore and chart turns run on the whole mesh: neither the solver's last iteration nor the
+    # measurement's start may share their step.
+    from perceptual_uv.core import chartfit
+
+    V, F, uv = grid_mesh()
+    targets = np.tile([0.1, 0.8, 0.7, 0.0], (8, 1))
+    weights = np.full(8, 1e-3)
+    events = []
+    finish = chartfit.finish_charts
+
+    def recorded_finish(*args, **kwargs):
+        events.append("finish")
+        return finish(*args, **kwargs)
+
+    def measure(new_uv):
+        events.append("measure")
+        return tw.losses_at(V, F, uv, texture(), new_uv)
+
+    solve = chartfit.iter_solve_meshwise
+
+    def recorded_solve(*args, **kwargs):
+        result = yield from solve(*args, **kwargs)
+        events.append("solved")
+        return result
+
+    monkeypatch.setattr(chartfit, "finish_charts", recorded_finish)
+    monkeypatch.setattr(chartfit, "iter_solve_meshwise", recorded_solve)
+    fit = run_generator(iter_fit_charts(F, uv, targets, weights, weights, measure=measure, max_iterations=3),
+                        lambda *step: events.append(step))
+    steps = 3 + 1
+    for index in range(2):
+        at = [n for n, event in enumerate(events) if event == "finish"][index]
+        assert events[at - 2:at] == ["solved", ((index + 1) * steps - 1, 2 * steps)]  # a yield before the finish
+        assert events[at + 1] == ((index + 1) * steps - 1, 2 * steps)  # and one between it and the measurement
+        assert events[at + 2] == "measure"
+    assert events[-1] == (2 * steps, 2 * steps)
+    np.testing.assert_array_equal(fit.uv, fit_charts(F, uv, targets, weights, weights, measure=measure,
+                                                     max_iterations=3).uv)
