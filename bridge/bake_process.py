@@ -9,9 +9,9 @@ keeps yielding while it runs:
    images: packed ones with their data, file images with absolute paths) into a temporary .blend with
    ``bpy.data.libraries.write``, and the pixels of images that exist only in memory (generated or edited and not
    saved, ``is_dirty``; or whose file is gone) as ``.npy`` files, since a .blend does not hold them.
-2. The child (the same interpreter the triangle-wise workers use, ``core.trianglewise._python_executable``, with
+2. The child (the same interpreter the triangle-wise workers use, ``core.spawn._python_executable``, with
    ``import bpy``; or Blender itself, ``bpy.app.binary_path -b --factory-startup``) imports this package the way
-   the workers do (``core.trianglewise._BOOTSTRAP``), loads the objects into an empty file, gives the in-memory
+   the workers do (``core.spawn._BOOTSTRAP``), loads the objects into an empty file, gives the in-memory
    images their pixels, finds each map's record again (:func:`_find_record`) and runs the same code as the
    parent would (:func:`.bake.bake_map_pixels`), writing each map's float32 pixels as an ``.npy`` file.
 3. The parent yields every 0.1 s while the child runs (the number of maps written so far is the progress), then
@@ -100,7 +100,7 @@ def _write_inputs(folder, objects, maps, *, source_uv, target_uv, resolutions, m
 
 def _child_code(folder):
     """The Python source the child runs: this package imported as the workers import it, then :func:`_run`."""
-    from ..core.trianglewise import _BOOTSTRAP, _package_parents
+    from ..core.spawn import _BOOTSTRAP, _package_parents
 
     # The parent's module paths too: inside Blender the extension's wheels live on a path a factory-startup
     # Blender does not add by itself.
@@ -114,7 +114,7 @@ def _child_command(code):
     interpreter that imports bpy as a module (the one the triangle-wise workers use)."""
     import bpy
 
-    from ..core.trianglewise import _python_executable
+    from ..core.spawn import _python_executable
 
     binary = bpy.app.binary_path
     if binary and os.path.isfile(binary) and "blender" in os.path.basename(binary).lower():
@@ -264,7 +264,7 @@ def _run(folder):
 
 
 def _worker_init(state):
-    """Entry point of the child (``core.trianglewise._BOOTSTRAP`` calls it with ``{"folder": ...}``): runs
+    """Entry point of the child (``core.spawn._BOOTSTRAP`` calls it with ``{"folder": ...}``): runs
     :func:`_run` and, when it fails, writes the error's type and message for the parent before re-raising."""
     try:
         _run(state["folder"])
