@@ -12,8 +12,8 @@ __all__ = []
 
 
 # Run in each spawned worker before any task is unpickled (as ``exec(source, namespace)``): registers the
-# parents of this package as bare namespace modules (their ``__init__`` never runs), then imports this module
-# under the same name as in the parent and hands it the shared arrays.
+# parents of this package as bare namespace modules (their ``__init__`` never runs), then imports the caller's
+# module ``module_name`` under the same name as in the parent and hands its ``_worker_init`` the ``state``.
 _BOOTSTRAP = """
 import importlib, sys, types
 for name, path in parents:
