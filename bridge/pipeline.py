@@ -534,19 +534,15 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         where = " in a background process" if settings.bake_in_background else ""
         stage = iter_bake_maps(objects, records, source_uv=source_uv, target_uv=uv_name, resolutions=sides,
                                margin=margins, names=names, in_background=settings.bake_in_background)
+
+        def bake_message(done, total):
+            if done < total:
+                return (f"Baking the {records[done].role.replace('_', ' ')} map ({done + 1}/{total}){where}: "
+                        f"{sides[done]} x {sides[done]}")
+            return "Making the new images"
+
         with contextlib.closing(stage):  # a cancel stops the background process at once
-            while True:
-                try:
-                    done, total = next(stage)
-                except StopIteration as finished:
-                    bakes = finished.value
-                    break
-                if done < total:
-                    message = (f"Baking the {records[done].role.replace('_', ' ')} map ({done + 1}/{total}){where}: "
-                               f"{sides[done]} x {sides[done]}")
-                else:
-                    message = "Making the new images"
-                yield step("bake", done, total, message)
+            bakes = yield from _relay(stage, "bake", None, clock, step, message=bake_message)
         created.images.extend(result.image for result in bakes)
         baked = {(result.record.image.as_pointer(), result.kind): result.image for result in bakes}
         new_image = bakes[0].image
@@ -630,13 +626,17 @@ def _overlap_report(uv, face_chart):
             "between_charts": int(overlaps.between_charts)}
 
 
-def _relay(stage, name, label, started, step):
-    """Re-yield a core stage's (done, total) progress through ``step`` with the stage's own time left."""
+def _relay(stage, name, label, started, step, *, message=None):
+    """Re-yield a core stage's (done, total) progress through ``step`` with the stage's own time left; returns the
+    stage's value. ``message(done, total)``, when given, is each step's message instead of the label's count."""
     while True:
         try:
             done, total = next(stage)
         except StopIteration as finished:
             return finished.value
+        if message is not None:
+            yield step(name, done, total, message(done, total))
+            continue
         elapsed = time.perf_counter() - started
         left = f", {format_seconds(elapsed / done * (total - done))} left in this stage" if done else ""
         yield step(name, done, total, f"{label}: {done}/{total}{left}")
