@@ -11,11 +11,14 @@ but no triangle covers (seams, island borders, thin strips) get what the bake wo
 nearest to them: the source map read there through the source UV map, taken to object space through the source
 map's tangent frame and back into the target map's (:mod:`..core.tangent_frame`), with the normals and tangents
 each program uses (:func:`_corner_frames`). The margin extends from all of these texels. On the texels Cycles
-covers, the same conversion gives Cycles' own values to a fraction of an 8-bit step (docs/DECISIONS.md).
+covers, the same conversion gives Cycles' own values to a fraction of an 8-bit step (docs/DECISIONS.md), except on
+a fold of the surface: a triangle whose geometric normal opposes its corner normals, which Cycles bakes as seen
+from behind, with the negated shading normal. Its texels take the same conversion, what the material shows there.
 """
 import bpy
 import numpy as np
 
+from ..core.footprint import footprint_texels
 from ..core.raster import sample_bilinear
 from ..core.tangent_frame import interpolate_frame, object_to_tangent, tangent_to_object
 from .bake import _bake_pass, _extend_margin, _footprints, _temporary_ids
@@ -123,11 +126,13 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
     pixels, covered = _bake_pass(objects, material_for, source_uv=source_uv, target_uv=target_uv,
                                  resolution=resolution, tiles=tiles, bake_type="NORMAL",
                                  slots=[len(slot_reads) for slot_reads in reads])
-    if not has_transform(record):  # the lookup below reads the source UV map without the node's transform
+    if not has_transform(record):  # the lookups below read the source UV map without the node's transform
+        folds = _fold_texels(objects, covered, target_uv=target_uv)  # before the seam texels join ``covered``
+        for obj, (mesh, rows, columns, face, bary) in zip(objects, folds):
+            values, known = normal_values(obj, record, mesh, face, bary, source_uv=source_uv, target_uv=target_uv)
+            pixels[rows[known], columns[known], :3] = values[known]
         for obj, (mesh, rows, columns, face, bary) in zip(objects, _footprints(objects, covered,
                                                                                 target_uv=target_uv)):
-            if not len(face):
-                continue
             values, known = normal_values(obj, record, mesh, face, bary, source_uv=source_uv, target_uv=target_uv)
             rows, columns = rows[known], columns[known]
             pixels[rows, columns, :3] = values[known]
@@ -136,6 +141,31 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
     pixels[..., 3] = 1.0
     _extend_margin(pixels, covered, margin)
     return pixels
+
+
+def _fold_texels(objects, covered, *, target_uv):
+    """Per object, the texels Cycles wrote whose centres lie inside a fold: a triangle whose geometric normal (its
+    winding, in object space) opposes the sum of its corner normals.
+
+    Returns
+    -------
+    list of tuple
+        Per object ``(mesh, rows, columns, face, bary)`` as :func:`.bake._footprints` gives them, for texels of
+        ``covered`` strictly inside a fold on ``target_uv``; ``bary`` is the texel centre's.
+    """
+    found = []
+    for obj in objects:
+        mesh = read_mesh(obj, uv_name=target_uv)
+        data = obj.data
+        corners = _get(data.vertices, "co", (len(data.vertices), 3))[mesh.F]
+        geometric = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normals = _get(data.corner_normals, "vector", (len(data.loops), 3))[mesh.tri_loops].sum(axis=1)
+        folds = np.flatnonzero(np.einsum("fd,fd->f", geometric, normals) < 0)
+        rows, columns, face, bary = footprint_texels(mesh.uv[folds], np.zeros_like(covered))
+        # a centre outside the triangle has its nearest point on the border, where a coordinate is exactly 0
+        inside = (bary > 0).all(axis=1) & covered[rows, columns]
+        found.append((mesh, rows[inside], columns[inside], folds[face[inside]], bary[inside]))
+    return found
 
 
 def _corner_frames(obj, source_uv, target_uv):
@@ -240,9 +270,11 @@ def normal_values(obj, record, mesh, face, bary, *, source_uv, target_uv):
     bary = np.asarray(bary, dtype=np.float64)
     values = np.tile(FLAT, (len(face), 1))
     known = np.zeros(len(face), dtype=bool)
+    if not len(face):
+        return values, known
     slot_reads = _reads(obj, record, source_uv)
     frames = _corner_frames(obj, source_uv, target_uv)
-    if frames is None or not len(face):
+    if frames is None:
         return values, known
     loops = mesh.tri_loops[face]
     (source_normals, source_tangents, source_signs), (target_normals, target_tangents, target_signs) = frames

@@ -313,6 +313,44 @@ def test_the_seam_conversion_gives_what_cycles_writes_inside_the_triangles():
     assert np.abs(values - baked).max() < 0.5 / 255
 
 
+def test_a_fold_of_the_surface_bakes_the_normal_the_material_shows():
+    """A 4 x 4 smooth grid with one triangle wound the other way (its geometric normal -z against corner normals
+    near +z, like Avocado's triangle #550) and a constant normal map, baked on a copy of its UV map: the frame is
+    the same, so every texel holds the source value. Cycles alone writes the negated normal on the fold:
+    measured (0.20, 0.50, 0.10) against the source's (0.8, 0.5, 0.9)."""
+    from perceptual_uv.bridge.bake_normal import bake_tangent_normal
+
+    reset_blender_scene()
+    k, size = 4, 32
+    vertices = [(i / k, j / k, 0.0) for j in range(k + 1) for i in range(k + 1)]
+    faces = []
+    for j in range(k):
+        for i in range(k):
+            a, b, c, d = j * (k + 1) + i, j * (k + 1) + i + 1, (j + 1) * (k + 1) + i + 1, (j + 1) * (k + 1) + i
+            faces += [(a, b, c), (a, c, d)]
+    fold = 2 * (k + 1)  # the first triangle of the inner quad (1, 1)
+    faces[fold] = faces[fold][::-1]
+    mesh = bpy.data.meshes.new("fold")
+    mesh.from_pydata(vertices, [], faces)
+    for polygon in mesh.polygons:
+        polygon.use_smooth = True
+    uv = np.array([vertices[vertex][:2] for face in faces for vertex in face])
+    mesh.uv_layers.new(name="UVMap").uv.foreach_set("vector", uv.ravel())
+    mesh.uv_layers.new(name="Same").uv.foreach_set("vector", uv.ravel())
+    mesh.uv_layers.active = mesh.uv_layers["UVMap"]
+    material = bpy.data.materials.new("fold_material")
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new("fold", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    add_normal_map(material, new_image("fold_normal", 16, (0.8, 0.5, 0.9)))
+    (record,) = read_object_materials(obj, source_uv="UVMap")[0].maps
+    pixels = bake_tangent_normal([obj], record, source_uv="UVMap", target_uv="Same", resolution=size, margin=0,
+                                 tiles=[(0, 0)])
+    # the fold covers the texel centres (x, y) with 8 < y < x < 16 in texels (its corners (8, 8), (16, 16), (16, 8))
+    np.testing.assert_allclose(pixels[11, 13, :3], (0.8, 0.5, 0.9), atol=2 / 255)
+    np.testing.assert_allclose(pixels[..., :3], np.broadcast_to((0.8, 0.5, 0.9), (size, size, 3)), atol=2 / 255)
+
+
 # --- sizes ---------------------------------------------------------------------------------------------------
 
 def test_each_map_keeps_its_size_relative_to_its_input():
