@@ -69,8 +69,8 @@ def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None
 def iter_pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None):
     """Generator: pack the charts of ``uv`` with translations and quarter turns into one square image.
 
-    Yields None after each chart's bitmaps and after each try; returns the :class:`Packing` (through
-    ``StopIteration.value``, as ``yield from`` gives it).
+    Yields None after each chart's bitmap in each quarter turn and after each chart placed in each try; returns
+    the :class:`Packing` (through ``StopIteration.value``, as ``yield from`` gives it).
 
     Parameters
     ----------
@@ -174,7 +174,7 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
 
 def _pack_at(uv, face_chart, count, density, margin, *, max_side):
     """Generator: pack at ``density`` into the smallest square found, or into ``max_side`` (None if the charts do
-    not fit); yields after each chart's bitmaps and each square tried."""
+    not fit); yields after each chart's bitmaps and each chart placed."""
     grow = (margin + 1) // 2
     order = np.argsort(face_chart, kind="stable")
     starts = np.searchsorted(face_chart[order], np.arange(count + 1))
@@ -188,31 +188,30 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
             return None
         raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
                          "unit; lower the target cost or set an explicit resolution")
-    bitmaps = []  # per chart: (bitmap, origin) for 0..3 quarter turns
-    total = 0
+    bitmaps = []  # per chart and quarter turn: (bitmap's shape, its rows' spans, origin)
+    sizes = np.zeros(count, dtype=np.int64)
     for chart in range(count):
         pixels = uv[order[starts[chart]:starts[chart + 1]]] * density
         turns = []
         for turn in range(4):
-            turned = _turn(pixels, turn)
-            grid, origin = _chart_bitmap(turned, grow)
-            turns.append((grid, origin))
+            grid, origin = _chart_bitmap(_turn(pixels, turn), grow)
+            turns.append((grid.shape, _row_spans(grid), origin))
+            if turn == 0:
+                sizes[chart] = grid.sum()
+            yield
         bitmaps.append(turns)
-        total += int(turns[0][0].sum())
-        yield
-    sizes = np.array([bitmaps[c][0][0].sum() for c in range(count)])
+    total = int(sizes.sum())
     chart_order = np.argsort(-sizes, kind="stable")
-    narrowest = max(min(grid.shape) for grid, _ in (turns[0] for turns in bitmaps))
+    narrowest = max(min(turns[0][0]) for turns in bitmaps)
 
-    def square(side):  # a strip ``side`` wide filled bottom-left; the packing if it is no higher
+    def square(side):  # generator: a strip ``side`` wide filled bottom-left; the packing if it is no higher
         if side < narrowest or side > _MAX_SIDE:
             return None
-        placed = _place_all(bitmaps, chart_order, side, limit=side)
+        placed = yield from _place_all(bitmaps, chart_order, side, limit=side)
         return None if placed is None else (side,) + placed[:2]
 
     if max_side is not None:
-        best = square(max_side)
-        yield
+        best = yield from square(max_side)
         if best is None:
             return None
     else:
@@ -225,7 +224,7 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
     for chart in range(count):
         rows = order[starts[chart]:starts[chart + 1]]
         turn = chosen[chart]
-        _, origin = bitmaps[chart][turn]
+        origin = bitmaps[chart][turn][2]
         out[rows] = (_turn(uv[rows] * density, turn) - origin + positions[chart]) / side
     coverage = float(np.abs(signed_uv_areas(out)).sum())
     return Packing(uv=out, resolution=int(side), turns=np.asarray(chosen, dtype=np.int64),
@@ -233,23 +232,21 @@ def _pack_at(uv, face_chart, count, density, margin, *, max_side):
 
 
 def _smallest_square(square, start):
-    """Generator: the smallest side found for which ``square(side)`` fits: 5 % steps from ``start`` until one
-    side fits and the one below does not, then 1 % steps up from that one (fitting is not monotonic in the
-    side); yields after each side tried."""
-    side, best, too_small = start, square(start), None
-    yield
+    """Generator: the smallest side found for which the generator ``square(side)`` fits: 5 % steps from
+    ``start`` until one side fits and the one below does not, then 1 % steps up from that one (fitting is not
+    monotonic in the side); yields what ``square`` yields."""
+    side, too_small = start, None
+    best = yield from square(start)
     for _ in range(200):
         if best is None:  # grow until a side fits
             too_small, side = side, max(side + 1, int(np.ceil(side * 1.05)))
             if side > _MAX_SIDE:
                 return None
-            best = square(side)
-            yield
+            best = yield from square(side)
             continue
         if too_small is not None:
             break
-        smaller = square(min(side - 1, int(side / 1.05)))  # shrink until a side does not fit
-        yield
+        smaller = yield from square(min(side - 1, int(side / 1.05)))  # shrink until a side does not fit
         if smaller is None:
             too_small = min(side - 1, int(side / 1.05))
         else:
@@ -258,8 +255,7 @@ def _smallest_square(square, start):
         candidate = int(np.ceil(too_small * 1.01 ** step))
         if candidate >= side:
             break
-        finer = square(candidate)
-        yield
+        finer = yield from square(candidate)
         if finer is not None:
             return finer
     return best
@@ -342,7 +338,8 @@ def _triangle_meets_box(x0, y0, x1, y1, x2, y2, bx, by):
 
 
 def _place_all(bitmaps, chart_order, width, *, limit):
-    """Bottom-left placement of every chart in a strip ``width`` wide; positions, turns and the used height."""
+    """Generator: bottom-left placement of every chart in a strip ``width`` wide, no higher than ``limit``;
+    yields after each chart placed; returns positions, turns and the used height, or None if they do not fit."""
     count = len(bitmaps)
     free_run = _empty_rows(max(64, 2 * width), width)
     positions = np.zeros((count, 2))
@@ -351,11 +348,9 @@ def _place_all(bitmaps, chart_order, width, *, limit):
     lowest = 0
     for chart in chart_order:
         best = None
-        for turn, (grid, _) in enumerate(bitmaps[chart]):
-            rows, cols = grid.shape
+        for turn, ((rows, cols), spans, _) in enumerate(bitmaps[chart]):
             if cols > width:
                 continue
-            spans = _row_spans(grid)
             y, x = _first_fit(free_run, spans, rows, cols, lowest)
             while y < 0 and free_run.shape[0] < limit + rows:  # the strip is full: double it
                 free_run = np.vstack([free_run, _empty_rows(free_run.shape[0], width)])
@@ -376,6 +371,7 @@ def _place_all(bitmaps, chart_order, width, *, limit):
         used = max(used, top)
         while lowest < free_run.shape[0] and free_run[lowest].max() == 0:
             lowest += 1
+        yield
     return positions, chosen, used
 
 
