@@ -213,9 +213,10 @@ _STAGE_MODULES = ("..core.chartfit", "..core.loss", "..core.result_cache", "..co
 
 
 def _iter_import_stages(step):
-    """Import :data:`_STAGE_MODULES` in a thread, yielding ``step("read", 0, ...)`` every 0.1 s until it is done
-    (nothing when they are imported already). A module whose import fails is left to the pipeline's own import,
-    which raises the error. (Importing ``.bake`` runs no bpy call: its module code only defines.)"""
+    """Import :data:`_STAGE_MODULES` and load numba's runtime (:func:`..core._jit.load_runtime`) in a thread,
+    yielding ``step("read", 0, ...)`` every 0.1 s until it is done (nothing when they are imported already). A
+    module whose import fails is left to the pipeline's own import, which raises the error. (Importing ``.bake``
+    runs no bpy call: its module code only defines.)"""
     import importlib
     import importlib.util
     import sys
@@ -228,6 +229,8 @@ def _iter_import_stages(step):
         for name in names:
             with contextlib.suppress(Exception):
                 importlib.import_module(name)
+        with contextlib.suppress(Exception):
+            importlib.import_module("..core._jit", __package__).load_runtime()
 
     for _ in InThread(load).wait():
         yield step("read", 0, _READ_STEPS, "Loading the optimizer")
