@@ -98,6 +98,7 @@ from .loss import _check_view_faces, prepare_triangles, textured_triangles
 from .loss_planes import texture_planes
 from .one_ring import one_ring_faces
 from .progress import InThread, run_generator
+from .shared_arrays import SharedArrays
 from .spawn import _BOOTSTRAP, _looks_like_python, _package_parents, _python_executable, _spawn_environment
 
 __all__ = ["WorkerDiedError", "LossNotEvaluableError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS",
@@ -691,10 +692,11 @@ class LossNotEvaluableError(ArithmeticError):
 _SPAWN_LOCK = threading.Lock()
 
 
-def _make_pool(workers, state):
-    """A pool of ``workers`` spawned processes, each initialized with ``state``; None when no Python interpreter
-    for them is found. Takes about a second (each worker starts Python and unpickles ``state`` before the next
-    starts): :func:`_run_chunks` calls it in a background thread."""
+def _make_pool(workers, state, shared):
+    """A pool of ``workers`` spawned processes, each initialized with ``state``, its large arrays put in
+    ``shared`` (a :class:`.shared_arrays.SharedArrays`) rather than pickled per worker; None when no Python
+    interpreter for them is found. Takes about a second (each worker starts Python and unpickles ``state``
+    before the next starts): :func:`_run_chunks` calls it in a background thread."""
     import multiprocessing
 
     executable = _python_executable()
@@ -703,16 +705,20 @@ def _make_pool(workers, state):
     context = multiprocessing.get_context("spawn")
     if not _looks_like_python(sys.executable):
         context.set_executable(executable)
-    namespace = {"parents": _package_parents(), "module_name": __name__, "state": state}
+    namespace = {"parents": _package_parents(), "module_name": __name__, "state": shared.share(state)}
     with _SPAWN_LOCK, _spawn_environment():
         return context.Pool(workers, initializer=exec, initargs=(_BOOTSTRAP, namespace))
 
 
-def _terminate_when_started(starting):
-    """Stop the pool ``starting`` (an :class:`.progress.InThread` of :func:`_make_pool`) makes, once it is made."""
-    pool = starting.join()
-    if pool is not None:
-        pool.terminate()
+def _terminate_when_started(starting, shared):
+    """Stop the pool ``starting`` (an :class:`.progress.InThread` of :func:`_make_pool`) makes, once it is made,
+    and free its ``shared`` arrays."""
+    try:
+        pool = starting.join()
+        if pool is not None:
+            pool.terminate()
+    finally:
+        shared.close()
 
 
 def _chunks(faces, size):
@@ -730,17 +736,19 @@ def _run_chunks(kind, state, faces, workers, chunk_size, scheduler=None):
         workers = os.cpu_count() or 1
     workers = min(workers, len(chunks))
     pool = None
+    shared = SharedArrays()
     if workers > 1:
-        starting = InThread(_make_pool, workers, state, interval=WAIT_SECONDS)
+        starting = InThread(_make_pool, workers, state, shared, interval=WAIT_SECONDS)
         try:
             pool = yield from starting.wait()
         except BaseException:
             # Closed (a cancel) or interrupted while the workers start: they are stopped once they are up, by a
             # thread of their own, so that the cancel does not wait for them (not a daemon: an interpreter that
             # exits meanwhile waits for it, rather than leave workers starting with a parent gone).
-            threading.Thread(target=_terminate_when_started, args=(starting,)).start()
+            threading.Thread(target=_terminate_when_started, args=(starting, shared)).start()
             raise
     if pool is None:
+        shared.close()
         for chunk in chunks:
             yield (_optimize_chunk if kind == "optimize" else _losses_chunk)(state, chunk)
         return
@@ -766,6 +774,7 @@ def _run_chunks(kind, state, faces, workers, chunk_size, scheduler=None):
         yield from InThread(pool.join, interval=WAIT_SECONDS).wait()  # the workers take about a second to exit
     finally:
         pool.terminate()
+        shared.close()
 
 
 def _run_chunks_on_dask(kind, state, chunks, scheduler):

@@ -83,9 +83,9 @@ def _held_pool_start(monkeypatch):
     release = threading.Event()
     make_pool = tw._make_pool
 
-    def held(workers, state):
+    def held(workers, state, shared):
         assert release.wait(60), "the stage did not hand control back while its worker pool started"
-        return make_pool(workers, state)
+        return make_pool(workers, state, shared)
 
     monkeypatch.setattr(tw, "_make_pool", held)
     return release
