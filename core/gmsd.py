@@ -219,23 +219,21 @@ def _pooled_index(pixel, n):
 
 
 @njit
-def _extend_cells(sums, counts, size, value, queue):
-    """Numba: ``value`` = mean of the covered pixels per cell of a flat (size, size) grid, and for cells without
-    one the value of the cell they are first reached from, breadth-first from all covered cells at once.
+def _breadth_first_order(counts, size, queue, source):
+    """Numba: the cells of a flat (size, size) grid in the order a breadth-first fill from all cells with a count
+    reaches them: ``queue[:covered]`` the cells with a count (row-major), ``queue[covered:tail]`` the others as
+    they are reached, each from ``source[q]`` (its first reached neighbour). Returns ``(covered, tail)``; ``tail``
+    is below ``size * size`` only when no cell has a count.
 
-    Which cells are reached is kept apart from their values, so a NaN mean (a NaN render) stays in its cell and
-    spreads to the cells filled from it, and every cell enters ``queue`` (of ``size * size``) once."""
+    Which cells are reached depends on the counts only, so the order serves any values (a NaN mean included)."""
     reached = np.zeros(size * size, np.bool_)
     tail = 0
     for k in range(size * size):
         if counts[k] > 0:
-            value[k] = sums[k] / counts[k]
             reached[k] = True
             queue[tail] = k
             tail += 1
-    if tail == 0:
-        value[:] = 0.0
-        return
+    covered = tail
     head = 0
     while head < tail:
         k = queue[head]
@@ -249,9 +247,28 @@ def _extend_cells(sums, counts, size, value, queue):
                 q = a * size + b
                 if not reached[q]:
                     reached[q] = True
-                    value[q] = value[k]
+                    source[q] = k
                     queue[tail] = q
                     tail += 1
+    return covered, tail
+
+
+@njit
+def _extend_cells(sums, counts, size, value, queue):
+    """Numba: ``value`` = mean of the covered pixels per cell of a flat (size, size) grid, and for cells without
+    one the value of the cell they are first reached from, breadth-first from all covered cells at once
+    (:func:`_breadth_first_order`; ``queue`` is its workspace of ``size * size``)."""
+    source = np.empty(size * size, np.int64)
+    covered, tail = _breadth_first_order(counts, size, queue, source)
+    if covered == 0:
+        value[:] = 0.0
+        return
+    for r in range(covered):
+        k = queue[r]
+        value[k] = sums[k] / counts[k]
+    for r in range(covered, tail):
+        q = queue[r]
+        value[q] = value[source[q]]
 
 
 @njit
@@ -288,15 +305,10 @@ def _extension_plan(counts, m):
     ``value[fill[r, 0]] = value[fill[r, 1]]`` gives every other cell the value :func:`_extend_cells` gives it.
     """
     size = m + 2
-    reached = np.zeros(size * size, np.bool_)
     queue = np.empty(size * size, np.int64)
-    tail = 0
-    for k in range(size * size):
-        if counts[k] > 0:
-            reached[k] = True
-            queue[tail] = k
-            tail += 1
-    covered = queue[:tail].copy()
+    source = np.empty(size * size, np.int64)
+    n_covered, tail = _breadth_first_order(counts, size, queue, source)
+    covered = queue[:n_covered].copy()
     n_inner = 0
     for i in range(m):
         for j in range(m):
@@ -309,27 +321,11 @@ def _extension_plan(counts, m):
             if counts[(i + 1) * size + j + 1] > 0:
                 inner[n_inner] = i * m + j
                 n_inner += 1
-    fill = np.empty((size * size - tail, 2), np.int64)
-    n_fill = 0
-    head = 0
-    while head < tail:
-        k = queue[head]
-        head += 1
-        i = k // size
-        j = k - i * size
-        for step in range(4):
-            a = i + (1 if step == 0 else -1 if step == 1 else 0)
-            b = j + (1 if step == 2 else -1 if step == 3 else 0)
-            if 0 <= a < size and 0 <= b < size:
-                q = a * size + b
-                if not reached[q]:
-                    reached[q] = True
-                    fill[n_fill, 0] = q
-                    fill[n_fill, 1] = k
-                    n_fill += 1
-                    queue[tail] = q
-                    tail += 1
-    return covered, inner, fill[:n_fill]
+    fill = np.empty((tail - n_covered, 2), np.int64)
+    for r in range(n_covered, tail):
+        fill[r - n_covered, 0] = queue[r]
+        fill[r - n_covered, 1] = source[queue[r]]
+    return covered, inner, fill
 
 
 @njit
