@@ -451,6 +451,55 @@ def _wins(results, costs=WIN_COSTS):
     return losses
 
 
+def _q_at_memory(points, memory, *, tolerance=0.02):
+    """A method's shaded q at image memory ``memory``: log q interpolated linearly in memory between the two
+    measured points around it (as :func:`core.evaluation.pixel_saving` interpolates over c_r); a point within
+    ``tolerance`` (relative) of ``memory`` is taken as it is; None outside the measured range."""
+    measured = sorted((p["memory_ratio"], p["q"]) for p in points if p.get("memory_ratio") and p["q"] > 0)
+    for ratio, q in measured:
+        if abs(ratio - memory) <= tolerance * memory:
+            return float(q)
+    for (m0, q0), (m1, q1) in zip(measured, measured[1:]):
+        if m0 < memory < m1:
+            return float(np.exp(np.interp(memory, [m0, m1], [np.log(q0), np.log(q1)])))
+    return None
+
+
+def _memory_figures(results, memories=WIN_COSTS):
+    """The shaded comparison at equal image memory (what a texture budget fixes; the methods' points are at
+    texel costs, and the same c_r takes different memory per method): per method q at each of ``memories``
+    (:func:`_q_at_memory`); the memory at which ours reaches the input's q at memory 0.5 (the input at a cost c
+    is the uniform downscale to c of its memory), with :func:`core.evaluation.pixel_saving` over ours' memory
+    ratios; per memory the other methods whose q is not above ours' (``beaten_by``) and those whose points do not
+    reach that memory (``unmeasured``)."""
+    from ..core.evaluation import pixel_saving
+
+    q = {method: [_q_at_memory(res["points"], m) for m in memories] for method, res in results.items()}
+    saving = None
+    target = _q_at_memory(results["input"]["points"], SAVING_REFERENCE_COST) if "input" in results else None
+    if target is not None and "ours" in results:
+        points = [p for p in results["ours"]["points"] if p.get("memory_ratio") and p["q"] > 0]
+        found = pixel_saving([p["memory_ratio"] for p in points], [p["q"] for p in points], target,
+                             reference_cost=SAVING_REFERENCE_COST)
+        saving = dict(input_q=target, memory=found.relative_cost, position=found.bracketed)
+    beaten, unmeasured = {}, {}
+    others = [method for method in q if not method.startswith("ours") and method != "paper"]
+    if "ours" in q:
+        for index, m in enumerate(memories):
+            if q["ours"][index] is not None:
+                beaten[str(m)] = [method for method in others
+                                  if q[method][index] is not None and q[method][index] <= q["ours"][index]]
+                unmeasured[str(m)] = [method for method in others if q[method][index] is None]
+    return dict(memories=list(memories), q=q, saving=saving, beaten_by=beaten, unmeasured=unmeasured)
+
+
+def _memory_verdict(figures, memory):
+    """"yes" or "no: <methods>" for ours at ``memory``, naming the methods not measured there."""
+    beaten, unmeasured = figures["beaten_by"][memory], figures["unmeasured"][memory]
+    verdict = "yes" if not beaten else "no: " + ", ".join(beaten)
+    return verdict + (f" ({', '.join(unmeasured)} not measured there)" if unmeasured else "")
+
+
 def _previous_results(file, methods, *, costs, screen):
     """Results and making times of ``methods`` from an earlier ``<model>.json``, checked to match this run."""
     if not methods:
@@ -620,6 +669,21 @@ def _model_markdown(table, results, costs):
                 per_map = ", ".join(f"{m['role']} {m['q']:.3g} (r {m['resolution']})" for m in p.get("maps", []))
                 lines.append(f"| {method} | {p['target_cost']:g} | {p.get('memory_ratio') or 0:.3f} | {p['q']:.4g} | "
                              f"{per_map} |")
+    if table.get("shaded"):
+        figures = _memory_figures(results)
+        lines += ["", "At equal image memory (log q_r interpolated linearly in memory between a method's measured "
+                      "points; - outside them):", "",
+                  "| method | " + " | ".join(f"q @ memory {m:g}" for m in figures["memories"]) + " |",
+                  "|---" * (len(figures["memories"]) + 1) + "|"]
+        lines += [f"| {method} | " + " | ".join(_q(value) for value in values) + " |"
+                  for method, values in figures["q"].items()]
+        saving = figures["saving"]
+        if saving:
+            lines += ["", f"Ours reaches the input's (the uniform downscale's) shaded q at memory "
+                          f"{SAVING_REFERENCE_COST} ({saving['input_q']:.4g}) at memory "
+                          f"{_saving_text(dict(saving, relative_cost=saving['memory']))}."]
+        for m in figures["beaten_by"]:
+            lines.append(f"Ours lowest at memory {m}: {_memory_verdict(figures, m)}.")
     bound = {m: r["above_bound"] for m, r in results.items() if "above_bound" in r}
     if bound:
         lines += ["", f"Textured triangles with E > epsilon, at the mesh-wise fit's targets / after the fit (of "
@@ -677,6 +741,30 @@ def write_summary(folder):
         lines += ["", f"Mean relative cost at which ours matches the input's q_r at c_r = 0.5: "
                       f"{np.mean(fractions):.3f} over the {len(fractions)} models where it does (target <= 0.25)"
                       + (f"; on {missed} of {len(rows)} models ours never reaches it." if missed else ".")]
+    shaded = [data for data in rows if data["table"].get("shaded")]
+    if shaded:
+        lines += ["", "Shaded, at equal image memory (each method's q interpolated between its measured points, "
+                      "`_memory_figures`):", "",
+                  "| model | q @ memory 0.3: input (= uniform downscale) | best other method | ours | memory where "
+                  "ours = input @ 0.5 | ours lowest at memory |", "|---|---|---|---|---|---|"]
+        memories = []
+        for data in shaded:
+            figures = _memory_figures(data["results"])
+            index = figures["memories"].index(0.3)
+            q03 = {m: values[index] for m, values in figures["q"].items()}
+            others = min(((q, m) for m, q in q03.items() if m != "input" and not m.startswith("ours")
+                          and m != "paper" and q is not None), default=None)
+            saving = figures["saving"]
+            if saving and saving["position"] != "above":
+                memories.append(saving["memory"])
+            wins = " / ".join(f"{m}: {_memory_verdict(figures, m)}" for m in figures["beaten_by"])
+            lines.append(f"| {data['table']['model']} | {_q(q03.get('input'))} | "
+                         f"{'-' if others is None else f'{others[0]:.3g} ({others[1]})'} | {_q(q03.get('ours'))} | "
+                         f"{'-' if not saving else _saving_text(dict(saving, relative_cost=saving['memory']))} | "
+                         f"{wins or '-'} |")
+        if memories:
+            lines += ["", f"Mean memory at which ours matches the input's shaded q at memory 0.5: "
+                          f"{np.mean(memories):.3f} over {len(memories)} of {len(shaded)} models."]
     (folder / "summary.md").write_text("\n".join(lines) + "\n")
     return "\n".join(lines)
 
