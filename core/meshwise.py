@@ -73,7 +73,7 @@ import scipy.sparse.linalg as sla
 
 from ._jit import njit
 from .charts import UVTopology, uv_topology, validate_faces_and_uv
-from .deformation import jacobian, rotation
+from .deformation import inverse_2x2, jacobian, rotation
 from .progress import run_generator
 
 __all__ = [
@@ -1009,7 +1009,7 @@ def orient_charts(uv_in, uv_new, face_chart, alpha, w_R, *, texel_scale=(1.0, 1.
     weight[(old_det == 0) | (new_det * old_det <= 0)] = 0.0
     fitted = weight > 0
     d = np.zeros(m)
-    J = new[fitted] @ np.linalg.inv(old[fitted])
+    J = new[fitted] @ inverse_2x2(old[fitted])
     d[fitted] = _angle_of(J) - alpha[fitted]
 
     def energies(theta):

@@ -94,6 +94,7 @@ import numpy as np
 from . import bayesopt
 from .camera import texel_matched_pixels
 from .charts import texel_areas
+from .deformation import inverse_2x2
 from .loss import _check_view_faces, prepare_triangles, textured_triangles
 from .loss_planes import texture_planes
 from .one_ring import one_ring_faces
@@ -972,7 +973,7 @@ def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixel
     old_det = np.linalg.det(old_edges)
     valid = np.abs(old_det) > 1e-12 * np.maximum(np.abs(old_edges).max(axis=(1, 2)) ** 2, 1e-300)
     J = np.zeros_like(old_edges)
-    J[valid] = new_edges[valid] @ np.linalg.inv(old_edges[valid])
+    J[valid] = new_edges[valid] @ inverse_2x2(old_edges[valid])
     valid &= np.linalg.det(J) > 0
     params = np.full((len(F), 4), np.inf)
     if valid.any():

@@ -27,3 +27,18 @@ def test_jacobian_determinant_is_eigenvalue_product():
 def test_jacobian_rejects_wrong_width():
     with pytest.raises(ValueError, match="4 columns"):
         jacobian(np.zeros((2, 3)))
+
+
+def test_inverse_2x2_by_hand_and_against_numpy():
+    from perceptual_uv.core.deformation import inverse_2x2
+
+    # [[2, 1], [1, 1]] has det 1 and inverse [[1, -1], [-1, 2]]
+    np.testing.assert_array_equal(inverse_2x2(np.array([[2.0, 1.0], [1.0, 1.0]])), [[1.0, -1.0], [-1.0, 2.0]])
+    # a rotation by 30 degrees times diag(2, 0.5): the inverse is diag(0.5, 2) times the rotation back
+    c, s = np.cos(np.pi / 6), np.sin(np.pi / 6)
+    m = np.array([[c, -s], [s, c]]) @ np.diag([2.0, 0.5])
+    np.testing.assert_allclose(inverse_2x2(m), np.diag([0.5, 2.0]) @ np.array([[c, s], [-s, c]]), atol=1e-15)
+    batch = np.random.default_rng(0).normal(size=(3, 5, 2, 2))
+    np.testing.assert_allclose(inverse_2x2(batch), np.linalg.inv(batch), rtol=1e-10, atol=1e-12)
+    with pytest.raises(ValueError):
+        inverse_2x2(np.eye(3))
