@@ -435,9 +435,13 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         yield step("read", 5, _READ_STEPS, "Looking for the triangle-wise results of an earlier run")
         clock = time.perf_counter()
-        key = result_key(V, F, uv_in, *planes, faces, epsilon=settings.epsilon, evaluations=settings.iterations,
-                         screen_pixels=settings.screen_pixels, max_screen_pixels=settings.max_screen_pixels,
-                         seed=settings.seed)
+        # hashing the planes takes a few tenths of a second on 2048 px maps; hashlib lets other threads run
+        hashing = InThread(lambda: result_key(
+            V, F, uv_in, *planes, faces, epsilon=settings.epsilon, evaluations=settings.iterations,
+            screen_pixels=settings.screen_pixels, max_screen_pixels=settings.max_screen_pixels, seed=settings.seed))
+        for _ in hashing.wait():
+            yield step("read", 5, _READ_STEPS, "Looking for the triangle-wise results of an earlier run")
+        key = hashing.join()
         triangles = triangle_results().get(key) if settings.reuse_triangle_results else None
         if triangles is None:
             stage = iter_optimize_triangles(V, F, uv_in, planes, epsilon=settings.epsilon,
