@@ -213,10 +213,11 @@ _STAGE_MODULES = ("..core.chartfit", "..core.loss", "..core.result_cache", "..co
 
 
 def _iter_import_stages(step):
-    """Import :data:`_STAGE_MODULES` and load numba's runtime (:func:`..core._jit.load_runtime`) in a thread,
-    yielding ``step("read", 0, ...)`` every 0.1 s until it is done (nothing when they are imported already). A
-    module whose import fails is left to the pipeline's own import, which raises the error. (Importing ``.bake``
-    runs no bpy call: its module code only defines.)"""
+    """Import :data:`_STAGE_MODULES` and load the kernels a run executes here (:func:`..core.warm_up.load_kernels`,
+    which compiles them after an install or update) in a thread, yielding ``step("read", 0, ...)`` every 0.1 s
+    until it is done (nothing when they are imported already). A module whose import fails is left to the
+    pipeline's own import, which raises the error. (Importing ``.bake`` runs no bpy call: its module code only
+    defines.)"""
     import importlib
     import importlib.util
     import sys
@@ -230,7 +231,7 @@ def _iter_import_stages(step):
             with contextlib.suppress(Exception):
                 importlib.import_module(name)
         with contextlib.suppress(Exception):
-            importlib.import_module("..core._jit", __package__).load_runtime()
+            importlib.import_module("..core.warm_up", __package__).load_kernels()
 
     for _ in InThread(load).wait():
         yield step("read", 0, _READ_STEPS, "Loading the optimizer")

@@ -12,7 +12,7 @@ import pathlib
 import shutil
 import sys
 
-__all__ = ["njit", "prange", "cache_dir", "core_source_hash", "load_runtime"]
+__all__ = ["njit", "prange", "cache_dir", "core_source_hash"]
 
 #: How many per-version numba folders stay (the current one and the most recently used others).
 KEPT_VERSIONS = 4
@@ -81,17 +81,3 @@ def njit(*args, **kwargs):
     kwargs.setdefault("cache", True)
     return numba.njit(*args, **kwargs)
 
-
-@njit
-def _increment(value):
-    return value + 1
-
-
-def load_runtime():
-    """Load numba's runtime into this process by running a tiny cached kernel.
-
-    The first kernel a process runs pays for the runtime (about 0.2 s, even from the on-disk cache); later
-    kernels load in milliseconds. The pipeline calls this in a thread while it imports its stages, so that cost
-    is not one uninterrupted step of whichever stage runs the first kernel.
-    """
-    _increment(1)
