@@ -694,7 +694,7 @@ def _model_markdown(table, results, costs):
     saving = table["pixel_saving"]
     if saving:
         lines += ["", f"Pixel saving: ours reaches the input's q_r at c_r = {SAVING_REFERENCE_COST} "
-                      f"({saving['input_q']:.4g}) at c_r = {saving['relative_cost']:.3f} ({saving['position']})."]
+                      f"({saving['input_q']:.4g}) at c_r = {_saving_text(saving)} ({saving['position']})."]
     for c, beaten in table["beaten_by"].items():
         lines.append(f"At c_r = {c}: " + ("ours has the lowest q_r." if not beaten else
                                            f"ours is NOT below {', '.join(beaten)}."))
