@@ -161,6 +161,9 @@ def _fold_texels(objects, covered, *, target_uv):
         geometric = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         normals = _get(data.corner_normals, "vector", (len(data.loops), 3))[mesh.tri_loops].sum(axis=1)
         folds = np.flatnonzero(np.einsum("fd,fd->f", geometric, normals) < 0)
+        if not len(folds):  # nearly every mesh: no search over an image-sized mask
+            found.append((mesh, *(np.empty(0, np.int64),) * 3, np.empty((0, 3))))
+            continue
         rows, columns, face, bary = footprint_texels(mesh.uv[folds], np.zeros_like(covered))
         # a centre outside the triangle has its nearest point on the border, where a coordinate is exactly 0
         inside = (bary > 0).all(axis=1) & covered[rows, columns]

@@ -80,4 +80,3 @@ def njit(*args, **kwargs):
     """``numba.njit`` with the on-disk cache on by default."""
     kwargs.setdefault("cache", True)
     return numba.njit(*args, **kwargs)
-

@@ -61,14 +61,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from .charts import uv_topology, validate_faces_and_uv
+from .deformation import inverse_2x2
 from .evaluation import _triangle_frames
+from .gmsd import luma
 from .mesh import check_mesh
 from .progress import run_generator
 
 __all__ = ["signal_metric_tensors", "iter_signal_metric_tensors", "expected_stretch", "ssp_energy", "SSPResult",
            "solve_ssp", "ssp_targets", "iter_ssp_targets"]
 
-_LUMA = np.array([0.299, 0.587, 0.114])
 # The generator forms hand control back after each slice of work, so a modal operator driving them keeps the
 # interface responsive: a slice of faces holds at most this many integration points (a few tens of ms and tens
 # of MB), a band of texture rows at most this many texels (its check and float64 copy, a few ms).
@@ -144,7 +145,7 @@ def _fill_signal(texture, channels, signal, rows):
     elif band.shape[2] == 1:
         signal[rows] = band
     elif channels == "luma":
-        signal[rows, :, 0] = band[..., :3].astype(np.float64) @ _LUMA
+        signal[rows, :, 0] = luma(band)
     else:
         signal[rows] = band[..., :3]
 
@@ -193,16 +194,6 @@ def _uv_edges(uv):
 
 def _det(M):
     return M[..., 0, 0] * M[..., 1, 1] - M[..., 0, 1] * M[..., 1, 0]
-
-
-def _inv2(M):
-    det = _det(M)
-    inv = np.empty_like(M)
-    inv[..., 0, 0] = M[..., 1, 1]
-    inv[..., 1, 1] = M[..., 0, 0]
-    inv[..., 0, 1] = -M[..., 0, 1]
-    inv[..., 1, 0] = -M[..., 1, 0]
-    return inv / det[..., None, None]
 
 
 def signal_metric_tensors(V, F, uv, texture, *, channels="all", samples_per_texel=4.0, max_level=16):
@@ -265,7 +256,7 @@ def iter_signal_metric_tensors(V, F, uv, texture, *, channels="all", samples_per
     total = int(np.count_nonzero(valid))
     # Map from the surface frame to UV: A = U X^-1 (defined wherever the surface triangle is not degenerate).
     A = np.zeros((m, 2, 2))
-    A[valid] = U[valid] @ _inv2(X[valid])
+    A[valid] = U[valid] @ inverse_2x2(X[valid])
 
     rows_per_band = max(1, _TEXELS_PER_SLICE // w)
     for start in range(0, h, rows_per_band):
@@ -367,7 +358,7 @@ def expected_stretch(metric, area):
 def _energy_parts(U, orientation, edge_metric):
     """Total signed-to-orientation UV area, signal stretch sum and their gradients in U (per triangle)."""
     det = _det(U)
-    B = _inv2(U)
+    B = inverse_2x2(U)
     BBt = B @ np.swapaxes(B, 1, 2)
     stretch = np.einsum("tij,tji->t", edge_metric, BBt)
     # d tr(M B B^T) / dU = -2 B^T M B B^T;  d det / dU = det U^-T.
@@ -405,7 +396,7 @@ def ssp_energy(V, F, uv, metric):
     U = _uv_edges(uv)[valid]
     det = _det(U)
     with np.errstate(divide="ignore", invalid="ignore"):
-        B = _inv2(U)
+        B = inverse_2x2(U)
         edge_metric = np.swapaxes(X[valid], 1, 2) @ metric[valid] @ X[valid]
         stretch = np.einsum("tij,tji->t", edge_metric, B @ np.swapaxes(B, 1, 2))
     if np.any(det == 0):
@@ -718,7 +709,7 @@ def iter_ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.
             raise ValueError("singular metric tensors: use geometric_weight > 0")
         shape = (g[:, 0] * g[:, 1]) ** -0.125
         # A_in^-1 = X U_in^-1, so H = A_in^-T G A_in^-1 = U_in^-T (X^T G X) U_in^-1.
-        U_inv = _inv2(U_in[valid])
+        U_inv = inverse_2x2(U_in[valid])
         Xv = X[valid]
         H = np.swapaxes(U_inv, 1, 2) @ np.swapaxes(Xv, 1, 2) @ density @ Xv @ U_inv
         H = 0.5 * (H + np.swapaxes(H, 1, 2))
