@@ -16,6 +16,8 @@ Sun et al. 2022, Sec. 5.2 (baselines), Fig. 17 (weight ablations), Fig. 18 (epsi
 import dataclasses
 import hashlib
 import os
+import pathlib
+import tempfile
 import time
 
 import bpy
@@ -211,7 +213,8 @@ def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=
         without the triangle-wise stage again: it is read when it was written for the same vertices, faces, UVs,
         planes (every array and its name) and settings (the time returned is then that of the run that wrote
         it), and written otherwise. The code is not part of the key: a change to the triangle-wise stage needs a
-        new cache.
+        new cache. While the stage runs, the faces done so far are kept next to it (``<cache>.partial.npz``,
+        about every half minute): a run cut off resumes from them, and its time adds up every run's.
     planes : core.loss_planes.PlaneStack, optional
         What the loss sees; default :func:`loss_planes` of the objects (every map of the material, as the
         product's run).
@@ -229,22 +232,50 @@ def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=
         planes = loss_planes(objects, source_uv=source_uv)
     settings = dict(epsilon=epsilon, evaluations=evaluations, screen_pixels=screen_pixels, seed=seed, **options)
     key = _triangle_cache_key(V, F, uv, planes, **settings)
-    if cache is not None and os.path.exists(cache):
-        with np.load(cache) as stored:
-            if str(stored["key"]) == key:
-                fields = {f.name: stored[f.name] for f in dataclasses.fields(TrianglewiseResult)
-                          if f.name in stored.files}
-                for name in ("epsilon", "lambda_min"):
-                    fields[name] = float(fields[name])
-                for name in ("formulation", "backend"):
-                    fields[name] = str(fields[name])
-                return TrianglewiseResult(**fields), float(stored["seconds"])
+    stored = _read_triangle_cache(cache, key)
+    if stored is not None:
+        return stored
+    partial = None if cache is None else pathlib.Path(cache).with_suffix(".partial.npz")
+    known, earlier = _read_triangle_cache(partial, key) or (None, 0.0)
     start = time.perf_counter()
-    result = optimize_triangles(V, F, uv, planes, workers=workers, **settings)
-    seconds = time.perf_counter() - start
+
+    def keep(result):
+        _write_triangle_cache(partial, key, result, earlier + time.perf_counter() - start)
+
+    result = optimize_triangles(V, F, uv, planes, workers=workers, known=known,
+                                checkpoint=None if cache is None else keep, **settings)
+    seconds = earlier + time.perf_counter() - start
     if cache is not None:
-        np.savez(cache, key=key, seconds=seconds, **dataclasses.asdict(result))
+        _write_triangle_cache(cache, key, result, seconds)
+        partial.unlink(missing_ok=True)
     return result, seconds
+
+
+def _read_triangle_cache(path, key):
+    """``(result, seconds)`` kept in ``path`` under ``key``, or None (no file, another key, or unreadable)."""
+    if path is None or not os.path.exists(path):
+        return None
+    try:
+        with np.load(path) as stored:
+            if str(stored["key"]) != key:
+                return None
+            fields = {f.name: stored[f.name] for f in dataclasses.fields(TrianglewiseResult) if f.name in stored.files}
+            seconds = float(stored["seconds"])
+    except (OSError, ValueError, KeyError):  # a file cut off while written: compute again
+        return None
+    for name in ("epsilon", "lambda_min"):
+        fields[name] = float(fields[name])
+    for name in ("formulation", "backend"):
+        fields[name] = str(fields[name])
+    return TrianglewiseResult(**fields), seconds
+
+
+def _write_triangle_cache(path, key, result, seconds):
+    """Keep ``result`` in ``path`` whole or not at all (written beside it, then renamed)."""
+    path = pathlib.Path(path)
+    with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp.npz", delete=False) as handle:
+        np.savez(handle, key=key, seconds=seconds, **dataclasses.asdict(result))
+    os.replace(handle.name, path)
 
 
 def _triangle_cache_key(V, F, uv, planes, **settings):

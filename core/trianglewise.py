@@ -116,6 +116,9 @@ MAX_SCREEN_PIXELS = 256
 TARGET_SLICE = 2048
 # Longest wait for worker results before a stage's generator hands control back (the modal operator's tick).
 WAIT_SECONDS = 0.1
+# Least time between two calls of the triangle-wise stage's ``checkpoint`` (each writes a few hundred bytes per
+# face done): a run cut off loses at most this much work.
+CHECKPOINT_SECONDS = 30.0
 DASK_CONNECT_SECONDS = 30
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
@@ -838,7 +841,7 @@ def _check_mesh(V, F, uv, luma, faces):
 def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
                             max_screen_pixels=MAX_SCREEN_PIXELS, lambda_min=LAMBDA_MIN, formulation=None,
                             backend="fast", workers=0, seed=0, faces=None, chunk_size=16, view_faces="window",
-                            scheduler=None):
+                            scheduler=None, known=None, checkpoint=None):
     """Generator form of :func:`optimize_triangles`: yields ``(done, total)`` faces, returns the result.
 
     Use ``result = yield from iter_optimize_triangles(...)`` in a pipeline generator, or drive it one step per
@@ -852,17 +855,35 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
         raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
     total = len(faces)
-    state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels,
-                   {"epsilon": float(epsilon), "evaluations": int(evaluations), "lambda_min": float(lambda_min),
-                    "formulation": formulation, "backend": backend, "seed": int(seed)}, view_faces)
     row_of = {int(face): row for row, face in enumerate(faces)}
     params = np.empty((total, 4))
     loss, w_R, w_S = np.empty(total), np.empty(total), np.empty(total)
     used = np.zeros(total, np.int64)
     feasible, constant, unevaluated = np.zeros(total, bool), np.zeros(total, bool), np.zeros(total, bool)
-    done = 0
+    columns = (params, loss, w_R, w_S, used, feasible, constant, unevaluated)
+    finished = np.zeros(total, bool)
+    if known is not None:
+        _check_known(known, epsilon, lambda_min, formulation, backend)
+        rows = np.array([row_of.get(int(face), -1) for face in known.faces], dtype=np.int64)
+        kept = rows >= 0
+        for column, values in zip(columns, _result_columns(known)):
+            column[rows[kept]] = values[kept]
+        finished[rows[kept]] = True
+
+    def result(rows=slice(None)):
+        return TrianglewiseResult(faces[rows], *(column[rows] for column in columns[:-1]), float(epsilon),
+                                  float(lambda_min), formulation, backend, unevaluated[rows])
+
+    remaining = faces[~finished]
+    done = total - len(remaining)
     yield done, total
-    with contextlib.closing(_run_chunks("optimize", state, faces, int(workers), int(chunk_size),
+    if not len(remaining):
+        return result()
+    state = _state(V, F, uv, luma, remaining, screen_pixels, max_screen_pixels,
+                   {"epsilon": float(epsilon), "evaluations": int(evaluations), "lambda_min": float(lambda_min),
+                    "formulation": formulation, "backend": backend, "seed": int(seed)}, view_faces)
+    saved = time.monotonic()
+    with contextlib.closing(_run_chunks("optimize", state, remaining, int(workers), int(chunk_size),
                                         scheduler)) as chunks:
         for item in chunks:
             if item is None:
@@ -871,17 +892,36 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
             chunk, rows = item
             for face, row in zip(chunk, rows):
                 i = row_of[int(face)]
-                params[i], loss[i], w_R[i], w_S[i], used[i], feasible[i], constant[i], unevaluated[i] = row
+                for column, value in zip(columns, row):
+                    column[i] = value
+                finished[i] = True
             done += len(chunk)
+            if checkpoint is not None and done < total and time.monotonic() - saved >= CHECKPOINT_SECONDS:
+                checkpoint(result(finished.copy()))
+                saved = time.monotonic()
             yield done, total
-    return TrianglewiseResult(faces, params, loss, w_R, w_S, used, feasible, constant, float(epsilon),
-                              float(lambda_min), formulation, backend, unevaluated)
+    return result()
+
+
+def _result_columns(result):
+    """The per-face arrays of a :class:`TrianglewiseResult`, in the order a worker returns a face's row."""
+    return (result.params, result.loss, result.w_R, result.w_S, result.evaluations, result.feasible,
+            result.is_constant, result.unevaluated)
+
+
+def _check_known(known, epsilon, lambda_min, formulation, backend):
+    """Refuse earlier results made under other settings (what the result itself records)."""
+    theirs = (float(known.epsilon), float(known.lambda_min), str(known.formulation), str(known.backend))
+    ours = (float(epsilon), float(lambda_min), formulation, backend)
+    if theirs != ours:
+        raise ValueError(f"known results were made with (epsilon, lambda_min, formulation, backend) = {theirs}, "
+                         f"not {ours}")
 
 
 def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_pixels=64,
                        max_screen_pixels=MAX_SCREEN_PIXELS, lambda_min=LAMBDA_MIN, formulation=None, backend="fast",
                        workers=0, seed=0, faces=None, chunk_size=16, progress=None, view_faces="window",
-                       scheduler=None):
+                       scheduler=None, known=None, checkpoint=None):
     """Triangle-wise stage: optimal deformation and sensitivity weights of every triangle.
 
     Parameters
@@ -930,6 +970,15 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
         Address of a Dask scheduler (``tcp://host:8786``): the chunks run as tasks of that cluster, every
         worker of it at once (``workers`` is then unused). The cluster's workers need this package and its
         dependencies; the results are those of a local run with the same seed.
+    known : TrianglewiseResult, optional
+        Results of some of the faces from an earlier run with the same mesh, texture and settings (a
+        ``checkpoint`` of a run cut off): their rows are taken as they are and only the other faces are
+        optimized. Since a face's result depends only on the seed, the result is that of one uninterrupted run.
+        Its epsilon, lambda_min, formulation and backend must be these.
+    checkpoint : callable, optional
+        Called as ``checkpoint(partial)`` with the :class:`TrianglewiseResult` of the faces done so far, at most
+        every :data:`CHECKPOINT_SECONDS` and never with every face done; pass what it keeps as ``known`` to
+        resume.
 
     Returns
     -------
@@ -943,7 +992,8 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
                                     screen_pixels=screen_pixels, max_screen_pixels=max_screen_pixels,
                                     lambda_min=lambda_min, formulation=formulation,
                                     backend=backend, workers=workers, seed=seed, faces=faces,
-                                    chunk_size=chunk_size, view_faces=view_faces, scheduler=scheduler)
+                                    chunk_size=chunk_size, view_faces=view_faces, scheduler=scheduler,
+                                    known=known, checkpoint=checkpoint)
     return run_generator(stage, progress)
 
 

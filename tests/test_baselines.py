@@ -95,6 +95,47 @@ def test_triangle_targets_are_cached_per_mesh_texture_and_settings(spot, tmp_pat
     assert runs == [0, 3]
 
 
+def test_triangle_targets_cut_off_resume_from_the_faces_done(spot, tmp_path, monkeypatch):
+    from perceptual_uv.core.trianglewise import TrianglewiseResult
+
+    objects, source = spot
+    calls = []
+
+    def rows(faces):
+        k = len(faces)
+        return TrianglewiseResult(
+            faces=np.asarray(faces), params=np.outer(faces, [1.0, 2.0, 3.0, 4.0]), loss=faces * 1e-3,
+            w_R=np.ones(k), w_S=np.ones(k), evaluations=np.full(k, 7), feasible=np.ones(k, bool),
+            is_constant=np.zeros(k, bool), epsilon=0.01, lambda_min=0.1, formulation="constrained", backend="fast")
+
+    def stage_cut_off(V, F, uv, luma, *, known, checkpoint, **settings):
+        calls.append(known)
+        checkpoint(rows(np.arange(10)))
+        raise KeyboardInterrupt  # the run is stopped after ten faces
+
+    monkeypatch.setattr(baselines, "optimize_triangles", stage_cut_off)
+    cache = tmp_path / "spot_eps0.01_n10.npz"
+    with pytest.raises(KeyboardInterrupt):
+        baselines.triangle_targets(objects, source_uv=source, epsilon=0.01, evaluations=10, cache=cache)
+    partial = tmp_path / "spot_eps0.01_n10.partial.npz"
+    assert calls == [None] and partial.is_file() and not cache.exists()
+
+    def stage_resumed(V, F, uv, luma, *, known, checkpoint, **settings):
+        calls.append(known)
+        return rows(np.arange(len(F)))
+
+    monkeypatch.setattr(baselines, "optimize_triangles", stage_resumed)
+    # another seed does not take the ten faces
+    baselines.triangle_targets(objects, source_uv=source, epsilon=0.01, evaluations=10, seed=1,
+                               cache=tmp_path / "other.npz")
+    assert calls[-1] is None
+    result, _ = baselines.triangle_targets(objects, source_uv=source, epsilon=0.01, evaluations=10, cache=cache)
+    np.testing.assert_array_equal(calls[-1].faces, np.arange(10))
+    np.testing.assert_array_equal(calls[-1].params[3], [3.0, 6.0, 9.0, 12.0])
+    assert cache.is_file() and not partial.exists()
+    np.testing.assert_array_equal(result.params, rows(np.arange(len(result.faces))).params)
+
+
 # --- the post-processing every method gets (fold restore and chart turn, ``core.chartfit.finish_charts``) ---
 
 def _charts(objects, source):

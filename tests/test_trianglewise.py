@@ -212,6 +212,40 @@ def test_iter_optimize_triangles_yields_progress_then_result():
     assert calls == [(0, 8), (4, 8), (8, 8)]
 
 
+def test_a_run_cut_off_resumes_from_its_checkpoint_to_the_uninterrupted_result(monkeypatch):
+    V, F, uv = grid_mesh(cells=3)
+    texture = _smooth_texture()
+    options = dict(evaluations=10, workers=1, chunk_size=4, seed=2)
+    whole = tw.optimize_triangles(V, F, uv, texture, **options)
+    monkeypatch.setattr(tw, "CHECKPOINT_SECONDS", 0.0)  # a checkpoint after every chunk
+    optimized = []
+    original_chunk = tw._optimize_chunk
+    monkeypatch.setattr(tw, "_optimize_chunk", lambda state, faces: optimized.append(list(faces)) or
+                        original_chunk(state, faces))
+    kept = []
+    stage = tw.iter_optimize_triangles(V, F, uv, texture, checkpoint=kept.append, **options)
+    for done, total in stage:
+        if done == 8:  # cut off after two chunks of the 18 faces
+            stage.close()
+            break
+    assert [len(partial.faces) for partial in kept] == [4, 8]
+    np.testing.assert_array_equal(kept[-1].faces, np.arange(8))
+    optimized.clear()
+    progress = []
+    resumed = run_generator(tw.iter_optimize_triangles(V, F, uv, texture, known=kept[-1], checkpoint=kept.append,
+                                                       **options), lambda *step: progress.append(step))
+    assert sorted(sum(optimized, [])) == list(range(8, 18))  # only the faces not done
+    assert progress[0] == (8, 18) and progress[-1] == (18, 18)
+    # a checkpoint holds the known faces too; none has every face done
+    assert [list(partial.faces) for partial in kept[2:]] == [list(range(12)), list(range(16))]
+    for field in dataclasses.fields(tw.TrianglewiseResult):
+        np.testing.assert_array_equal(getattr(resumed, field.name), getattr(whole, field.name))
+    everything = run_generator(tw.iter_optimize_triangles(V, F, uv, texture, known=whole, **options))
+    assert len(optimized) == 3 and np.array_equal(everything.params, whole.params)  # nothing left to optimize
+    with pytest.raises(ValueError, match="known results were made with"):
+        run_generator(tw.iter_optimize_triangles(V, F, uv, texture, known=whole, epsilon=0.02, **options))
+
+
 def test_losses_at_identity_is_zero_and_flips_are_infinite():
     V, F, uv = grid_mesh(cells=3)
     texture = _smooth_texture()
