@@ -445,13 +445,21 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         key = hashing.join()
         triangles = triangle_results().get(key) if settings.reuse_triangle_results else None
         if triangles is None:
+            # The faces done by a run of the same key that was cancelled or killed (kept about every half minute).
+            partial_key = f"{key}-partial"
+            known = triangle_results().get(partial_key) if settings.reuse_triangle_results else None
             stage = iter_optimize_triangles(V, F, uv_in, planes, epsilon=settings.epsilon,
                                             evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
                                             max_screen_pixels=settings.max_screen_pixels,
                                             workers=settings.workers, seed=settings.seed, faces=faces,
-                                            scheduler=settings.scheduler)
+                                            scheduler=settings.scheduler, known=known,
+                                            checkpoint=lambda partial: triangle_results().put(partial_key, partial))
             triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock, step)
             triangle_results().put(key, triangles)
+            triangle_results().discard(partial_key)
+            if known is not None:
+                notes.append(f"the triangle-wise results of {len(known.faces)} of {len(faces)} triangles were taken "
+                             "from an earlier run on the same input that was stopped before its end")
         else:
             notes.append("the triangle-wise results of an earlier run on the same mesh, UV map, texture and settings "
                          "were reused (Clear Cached Results in the sidebar, or --fresh on the command line, "
@@ -637,6 +645,7 @@ def _overlap_report(uv, face_chart):
 def _relay(stage, name, label, started, step, *, message=None):
     """Re-yield a core stage's (done, total) progress through ``step`` with the stage's own time left; returns the
     stage's value. ``message(done, total)``, when given, is each step's message instead of the label's count."""
+    first = None  # the count a stage starts from (a resumed stage starts past 0)
     while True:
         try:
             done, total = next(stage)
@@ -645,8 +654,10 @@ def _relay(stage, name, label, started, step, *, message=None):
         if message is not None:
             yield step(name, done, total, message(done, total))
             continue
+        first = done if first is None else first
         elapsed = time.perf_counter() - started
-        left = f", {format_seconds(elapsed / done * (total - done))} left in this stage" if done else ""
+        left = (f", {format_seconds(elapsed / (done - first) * (total - done))} left in this stage"
+                if done > first else "")
         yield step(name, done, total, f"{label}: {done}/{total}{left}")
 
 

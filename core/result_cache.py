@@ -111,6 +111,12 @@ class ResultCache:
         except OSError:  # a read-only or full disk costs the next run its time, nothing else
             pass
 
+    def discard(self, key):
+        """Forget the result stored under ``key``, in memory and in the folder (nothing if there is none)."""
+        self._recent.pop(key, None)
+        if self.folder is not None:
+            (self.folder / f"{key}.npz").unlink(missing_ok=True)
+
     def clear(self):
         """Forget every result, in memory and in the folder; return the number of files removed."""
         self._recent.clear()

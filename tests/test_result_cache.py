@@ -69,6 +69,16 @@ def test_a_damaged_file_counts_as_missing_and_clear_removes_everything(tmp_path)
     assert cache.get("good") is None and not list(tmp_path.glob("*.npz"))
 
 
+def test_discard_forgets_a_result_in_memory_and_on_disk(tmp_path):
+    cache = ResultCache(Result, folder=tmp_path)
+    cache.put("k", result())
+    cache.put("other", result(1))
+    cache.discard("k")
+    cache.discard("never stored")
+    assert cache.get("k") is None and ResultCache(Result, folder=tmp_path).get("k") is None
+    assert cache.get("other") is not None
+
+
 def test_an_unwritable_folder_keeps_results_in_memory(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")
@@ -114,3 +124,47 @@ def test_the_pipeline_reuses_triangle_results_and_only_then(spot_obj):
     np.testing.assert_array_equal(uv_third, uv_first)  # what was reused is what the stage computes
     fourth, _ = run(iterations=12)
     assert not any("reused" in note for note in fourth["notes"])  # another setting of the stage
+
+
+def test_a_run_stopped_in_the_triangle_wise_stage_resumes_from_the_faces_done(spot_obj, monkeypatch):
+    pytest.importorskip("bpy")
+    from conftest import reset_blender_scene
+    from perceptual_uv.bridge.batch import textured_objects
+    from perceptual_uv.bridge.mesh_io import import_model
+    from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end, triangle_results
+    from perceptual_uv.core import trianglewise
+    from perceptual_uv.core.settings import OptimizeSettings
+
+    monkeypatch.setattr(trianglewise, "CHECKPOINT_SECONDS", 0.0)  # the faces done kept after every chunk
+    options = dict(target_cost=0.3, iterations=10, screen_pixels=32, max_screen_pixels=32, workers=1,
+                   cost_measure="texels")
+
+    def fresh_object():
+        reset_blender_scene()
+        import_model(spot_obj)
+        [obj] = textured_objects()
+        return obj
+
+    def uv_of(obj, finished):
+        values = np.empty(2 * len(obj.data.loops))
+        obj.data.uv_layers[finished.uv_map].uv.foreach_get("vector", values)
+        return values
+
+    obj = fresh_object()
+    whole = run_to_end(optimize_objects([obj], OptimizeSettings(**options, reuse_triangle_results=False)))
+    uv_whole = uv_of(obj, whole)
+    triangle_results().clear()
+    obj = fresh_object()
+    run = optimize_objects([obj], OptimizeSettings(**options))
+    for step in run:  # the user cancels a third of the way through the stage
+        if step.stage == "triangle" and 3 * step.done >= step.total > 0:
+            total = step.total
+            run.close()
+            break
+    [partial] = triangle_results().folder.glob("*-partial.npz")
+    obj = fresh_object()
+    resumed = run_to_end(optimize_objects([obj], OptimizeSettings(**options)))
+    [note] = [note for note in resumed.report["notes"] if "stopped before its end" in note]
+    assert int(note.split()[4]) >= total // 3 and f"of {total} triangles" in note
+    assert not partial.exists() and len(list(triangle_results().folder.glob("*.npz"))) == 1
+    np.testing.assert_array_equal(uv_of(obj, resumed), uv_whole)  # as if never stopped
