@@ -1,7 +1,7 @@
 """How this package starts a helper process: the interpreter to run (inside Blender ``sys.executable`` is
 Blender), the environment while it starts (one BLAS/numba thread, no re-run of ``__main__``) and the bootstrap
 that imports this package in the child under the parent's module names. Used by the triangle-wise workers
-(:mod:`.trianglewise`) and the background bake (``bridge.bake_process``); kept apart so that neither depends on
+(:mod:`.worker_pool`) and the background bake (``bridge.bake_process``); kept apart so that neither depends on
 the other's code."""
 import contextlib
 import os

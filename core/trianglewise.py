@@ -59,11 +59,8 @@ Decisions (the paper leaves them open):
   ``(0, lambda_min, lambda_min, 0)``, ``E = 0``, ``w_R = w_S = 0``, no evaluation.
 * Determinism: each triangle's optimizer is seeded by ``(seed, face)``, so results do not depend on the
   number of workers or on how faces are split into chunks.
-* Workers are spawned processes that receive the mesh arrays once and face-index chunks afterwards. Inside
-  Blender, ``sys.executable`` may not be a Python interpreter and the package is importable only as
-  ``bl_ext.<repo>.perceptual_uv``: workers get an interpreter found next to the running Python and register
-  the package's parent modules as bare namespace modules before importing this module, so the extension's
-  ``__init__`` (which registers Blender classes) never runs in a worker.
+* Workers are spawned processes that receive the mesh arrays once and face-index chunks afterwards
+  (:mod:`.worker_pool`), or the workers of a Dask cluster.
 
 The paper as written (for comparison; every keyword's default is the project's choice): App. A's fixed
 64 px views of the one-ring, the barrier form, no texel floor, no blend, Eq. 17's weights unchanged::
@@ -84,9 +81,6 @@ Sun et al. 2022, Sec. 4.1 (Eq. 6-7, 12-14), Sec. 4.2 (Eq. 17), App. A.
 import contextlib
 import dataclasses
 import math
-import os
-import sys
-import threading
 import time
 
 import numpy as np
@@ -98,14 +92,13 @@ from .deformation import inverse_2x2
 from .loss import _check_view_faces, prepare_triangles, textured_triangles
 from .loss_planes import texture_planes
 from .one_ring import one_ring_faces
-from .progress import InThread, run_generator
-from .shared_arrays import SharedArrays
-from .spawn import _BOOTSTRAP, _looks_like_python, _package_parents, _python_executable, _spawn_environment
+from .progress import run_generator
+from .worker_pool import WorkerDiedError, run_chunks
 
 __all__ = ["WorkerDiedError", "LossNotEvaluableError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "MIN_TEXELS",
            "SIGNAL_WEIGHT", "TriangleOptimum", "TrianglewiseResult", "finite_barrier", "sensitivity_weights",
            "optimize_triangle", "iter_optimize_triangles", "optimize_triangles", "iter_losses_at", "losses_at",
-           "iter_losses_of", "losses_of", "WAIT_SECONDS"]
+           "iter_losses_of", "losses_of"]
 
 LAMBDA_MIN = 0.1
 _IDENTITY = np.array([0.0, 1.0, 1.0, 0.0])
@@ -114,12 +107,9 @@ MAX_SCREEN_PIXELS = 256
 # Faces whose texels :meth:`TrianglewiseResult.iter_fit_targets` tests between two yields (a few hundredths of
 # a second on a 2k texture).
 TARGET_SLICE = 2048
-# Longest wait for worker results before a stage's generator hands control back (the modal operator's tick).
-WAIT_SECONDS = 0.1
 # Least time between two calls of the triangle-wise stage's ``checkpoint`` (each writes a few hundred bytes per
 # face done): a run cut off loses at most this much work.
 CHECKPOINT_SECONDS = 30.0
-DASK_CONNECT_SECONDS = 30
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
@@ -666,162 +656,8 @@ def _losses_chunk(state, faces):
     return np.asarray(faces), out
 
 
-_WORKER_STATE = {}
-
-
-def _worker_init(state):
-    _WORKER_STATE.clear()
-    _WORKER_STATE.update(state)
-    # Worker processes split the cores among themselves: one thread each for BLAS and numba.
-    with contextlib.suppress(Exception):
-        import threadpoolctl
-
-        threadpoolctl.threadpool_limits(1)
-
-
-def _worker_task(kind, faces):
-    return (_optimize_chunk if kind == "optimize" else _losses_chunk)(_WORKER_STATE, faces)
-
-
-class WorkerDiedError(RuntimeError):
-    """A worker process of the triangle-wise stage ended without delivering its results."""
-
-
 class LossNotEvaluableError(ArithmeticError):
     """The perceptual loss E of a triangle came out NaN or infinite for a deformation of the box."""
-
-
-# One pool starts at a time: _spawn_environment swaps process-wide state (environment, __main__), and a pool
-# still starting in the background after a cancel may overlap the next run's.
-_SPAWN_LOCK = threading.Lock()
-
-
-def _make_pool(workers, state, shared):
-    """A pool of ``workers`` spawned processes, each initialized with ``state``, its large arrays put in
-    ``shared`` (a :class:`.shared_arrays.SharedArrays`) rather than pickled per worker; None when no Python
-    interpreter for them is found. Takes about a second (each worker starts Python and unpickles ``state``
-    before the next starts): :func:`_run_chunks` calls it in a background thread."""
-    import multiprocessing
-
-    executable = _python_executable()
-    if executable is None:
-        return None
-    context = multiprocessing.get_context("spawn")
-    if not _looks_like_python(sys.executable):
-        context.set_executable(executable)
-    namespace = {"parents": _package_parents(), "module_name": __name__, "state": shared.share(state)}
-    with _SPAWN_LOCK, _spawn_environment():
-        return context.Pool(workers, initializer=exec, initargs=(_BOOTSTRAP, namespace))
-
-
-def _terminate_when_started(starting, shared):
-    """Stop the pool ``starting`` (an :class:`.progress.InThread` of :func:`_make_pool`) makes, once it is made,
-    and free its ``shared`` arrays."""
-    try:
-        pool = starting.join()
-        if pool is not None:
-            pool.terminate()
-    finally:
-        shared.close()
-
-
-def _chunks(faces, size):
-    return [faces[start:start + size] for start in range(0, len(faces), size)]
-
-
-def _run_chunks(kind, state, faces, workers, chunk_size, scheduler=None):
-    """Yield ``(faces, output)`` per chunk, in worker processes, on a Dask cluster or here, and None every
-    ``WAIT_SECONDS`` while the workers have nothing new."""
-    chunks = _chunks(faces, chunk_size)
-    if scheduler is not None:
-        yield from _run_chunks_on_dask(kind, state, chunks, scheduler)
-        return
-    if workers == 0:
-        workers = os.cpu_count() or 1
-    workers = min(workers, len(chunks))
-    pool = None
-    shared = SharedArrays()
-    if workers > 1:
-        starting = InThread(_make_pool, workers, state, shared, interval=WAIT_SECONDS)
-        try:
-            pool = yield from starting.wait()
-        except BaseException:
-            # Closed (a cancel) or interrupted while the workers start: they are stopped once they are up, by a
-            # thread of their own, so that the cancel does not wait for them (not a daemon: an interpreter that
-            # exits meanwhile waits for it, rather than leave workers starting with a parent gone).
-            threading.Thread(target=_terminate_when_started, args=(starting, shared)).start()
-            raise
-    if pool is None:
-        shared.close()
-        for chunk in chunks:
-            yield (_optimize_chunk if kind == "optimize" else _losses_chunk)(state, chunk)
-        return
-    import multiprocessing
-
-    # Pool replaces a worker that dies but loses its task, so the results would never arrive: wait in short
-    # slices and give up with a clear error once any of the original workers is gone.
-    original_workers = {process.pid for process in pool._pool}
-    try:
-        results = pool.imap_unordered(_chunk_call, [(kind, chunk) for chunk in chunks])
-        for _ in chunks:
-            while True:
-                try:
-                    output = results.next(timeout=WAIT_SECONDS)
-                    break
-                except multiprocessing.TimeoutError:
-                    if {process.pid for process in pool._pool} != original_workers:
-                        raise WorkerDiedError("a worker process of the triangle-wise stage died (out of memory or "
-                                           "killed?); run again with fewer workers") from None
-                    yield None  # nothing finished yet: the caller gets control back (a modal operator's tick)
-            yield output
-        pool.close()
-        yield from InThread(pool.join, interval=WAIT_SECONDS).wait()  # the workers take about a second to exit
-    finally:
-        pool.terminate()
-        shared.close()
-
-
-def _run_chunks_on_dask(kind, state, chunks, scheduler):
-    """The chunks as tasks of the Dask cluster at ``scheduler``: the shared arrays are sent to every worker
-    once, each task returns plain arrays, and the per-face seeds make the results those of a local run."""
-    try:
-        from distributed import Client
-    except ImportError:
-        raise ValueError("sending the triangle-wise stage to a Dask scheduler needs Dask: "
-                         "pip install dask distributed") from None
-    try:
-        client = Client(scheduler, set_as_default=False, timeout=DASK_CONNECT_SECONDS)
-    except (OSError, TimeoutError) as error:
-        raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {error}") from None
-    futures = []
-    try:
-        [shared] = client.scatter([state], broadcast=True)
-        futures = [client.submit(_dask_chunk, shared, kind, chunk, pure=False) for chunk in chunks]
-        pending, last = set(futures), time.monotonic()
-        while pending:
-            finished = [future for future in pending if future.done()]
-            if not finished:
-                time.sleep(min(0.02, WAIT_SECONDS))
-                if time.monotonic() - last >= WAIT_SECONDS:
-                    last = time.monotonic()
-                    yield None
-                continue
-            for future in finished:
-                pending.discard(future)
-                last = time.monotonic()
-                yield future.result()  # a task that failed raises its error here
-    finally:
-        for future in futures:
-            future.cancel()
-        client.close()
-
-
-def _dask_chunk(state, kind, faces):
-    return (_optimize_chunk if kind == "optimize" else _losses_chunk)(state, faces)
-
-
-def _chunk_call(task):
-    return _worker_task(*task)
 
 
 def _check_mesh(V, F, uv, luma, faces):
@@ -883,8 +719,8 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
                    {"epsilon": float(epsilon), "evaluations": int(evaluations), "lambda_min": float(lambda_min),
                     "formulation": formulation, "backend": backend, "seed": int(seed)}, view_faces)
     saved = time.monotonic()
-    with contextlib.closing(_run_chunks("optimize", state, remaining, int(workers), int(chunk_size),
-                                        scheduler)) as chunks:
+    with contextlib.closing(run_chunks(_optimize_chunk, state, remaining, workers=int(workers),
+                                       chunk_size=int(chunk_size), scheduler=scheduler)) as chunks:
         for item in chunks:
             if item is None:
                 yield done, total
@@ -1010,8 +846,8 @@ def _params_from_jacobians(J):
 
 def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
                    workers=1, chunk_size=64, view_faces="window", scheduler=None):
-    """Generator form of :func:`losses_at`: yields ``(done, total)`` faces (again every ``WAIT_SECONDS`` while
-    workers compute), returns the losses."""
+    """Generator form of :func:`losses_at`: yields ``(done, total)`` faces (again every
+    :data:`.worker_pool.WAIT_SECONDS` while workers compute), returns the losses."""
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
     new_uv = np.asarray(new_uv, dtype=np.float64)
     if new_uv.shape != uv.shape:
@@ -1067,8 +903,8 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
 
 def iter_losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
                    workers=1, chunk_size=64, view_faces="window", scheduler=None):
-    """Generator form of :func:`losses_of`: yields ``(done, total)`` faces (again every ``WAIT_SECONDS`` while
-    workers compute), returns the losses."""
+    """Generator form of :func:`losses_of`: yields ``(done, total)`` faces (again every
+    :data:`.worker_pool.WAIT_SECONDS` while workers compute), returns the losses."""
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
     params = np.asarray(params, dtype=np.float64)
     if params.shape != (len(faces), 4):
@@ -1112,8 +948,8 @@ def _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels
     row_of = {int(face): row for row, face in enumerate(faces)}
     done = 0
     yield done, len(faces)
-    with contextlib.closing(_run_chunks("losses", state, faces, int(workers), int(chunk_size),
-                                        scheduler)) as chunks:
+    with contextlib.closing(run_chunks(_losses_chunk, state, faces, workers=int(workers),
+                                       chunk_size=int(chunk_size), scheduler=scheduler)) as chunks:
         for item in chunks:
             if item is not None:
                 chunk, values = item

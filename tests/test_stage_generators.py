@@ -6,6 +6,7 @@ import time
 import numpy as np
 
 from perceptual_uv.core import trianglewise as tw
+from perceptual_uv.core import worker_pool
 from perceptual_uv.core.chartfit import fit_charts, iter_fit_charts
 from perceptual_uv.core.progress import run_generator
 
@@ -41,7 +42,7 @@ def test_iter_losses_yield_face_counts_and_return_the_losses():
 
 def test_waiting_for_workers_yields_the_same_progress_again(monkeypatch):
     # A wait far shorter than any chunk: the generator must come back with unchanged progress while it waits.
-    monkeypatch.setattr(tw, "WAIT_SECONDS", 1e-4)
+    monkeypatch.setattr(worker_pool, "WAIT_SECONDS", 1e-4)
     V, F, uv = grid_mesh()
     progress = []
     result = run_generator(tw.iter_optimize_triangles(V, F, uv, texture(), evaluations=10, workers=2,
@@ -78,16 +79,16 @@ def test_fit_charts_drives_a_generator_measure_to_the_same_result():
 
 
 def _held_pool_start(monkeypatch):
-    """Make :func:`trianglewise._make_pool` wait until the returned event is set: a stage that blocked on the
+    """Make :func:`worker_pool._make_pool` wait until the returned event is set: a stage that blocked on the
     start instead of handing control back would fail here (the wait runs out) rather than hang."""
     release = threading.Event()
-    make_pool = tw._make_pool
+    make_pool = worker_pool._make_pool
 
     def held(workers, state, shared):
         assert release.wait(60), "the stage did not hand control back while its worker pool started"
         return make_pool(workers, state, shared)
 
-    monkeypatch.setattr(tw, "_make_pool", held)
+    monkeypatch.setattr(worker_pool, "_make_pool", held)
     return release
 
 

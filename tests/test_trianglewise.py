@@ -9,6 +9,7 @@ import textwrap
 import numpy as np
 import pytest
 
+from perceptual_uv.core import spawn
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.loss import triangle_problem
@@ -294,12 +295,12 @@ def test_triangles_spanning_many_texels_are_seen_at_one_pixel_per_texel():
 
 def test_python_executable_found_when_running_inside_blender(monkeypatch):
     monkeypatch.setattr(sys, "executable", "/opt/blender/blender")
-    found = tw._python_executable()
+    found = spawn._python_executable()
     assert found is not None and os.path.basename(found).startswith("python") and os.path.isfile(found)
 
 
 def test_package_parents_cover_the_package_chain():
-    parents = tw._package_parents()
+    parents = spawn._package_parents()
     names = [name for name, _ in parents]
     assert names == ["perceptual_uv"]
     assert pathlib.Path(parents[0][1], "core", "trianglewise.py").is_file()

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core import trianglewise as tw
+from perceptual_uv.core import worker_pool
 from perceptual_uv.core.progress import run_generator
 
 distributed = pytest.importorskip("distributed")
@@ -31,7 +32,7 @@ def test_chunks_on_a_cluster_give_the_local_results(cluster):
 
 
 def test_an_unreachable_scheduler_is_a_clear_error(monkeypatch):
-    monkeypatch.setattr(tw, "DASK_CONNECT_SECONDS", 1)
+    monkeypatch.setattr(worker_pool, "DASK_CONNECT_SECONDS", 1)
     V, F, uv = grid_mesh()
     with pytest.raises(ValueError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
         tw.optimize_triangles(V, F, uv, texture(), evaluations=10, scheduler="tcp://127.0.0.1:9")
