@@ -11,8 +11,8 @@ from perceptual_uv.core import worker_pool
 from perceptual_uv.core.trianglewise import WorkerDiedError, iter_optimize_triangles
 
 
-@pytest.mark.slow
-def test_killed_worker_gives_a_clear_error():
+def _stage_with_a_chunk_done():
+    """The triangle-wise stage on a 12 x 12 grid in two workers, stepped until a chunk has come back."""
     n = 12
     xs, ys = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
     V = np.stack([xs.ravel(), ys.ravel(), np.zeros(n * n)], axis=1)
@@ -22,8 +22,14 @@ def test_killed_worker_gives_a_clear_error():
     stage = iter_optimize_triangles(V, F, V[F][:, :, :2], luma, evaluations=20, screen_pixels=32, workers=2,
                                     chunk_size=4)
     done = 0
-    while done == 0:  # the pool starts in the background: step until a chunk has come back from it
+    while done == 0:  # the pool starts in the background
         done, _ = next(stage)
+    return stage
+
+
+@pytest.mark.slow
+def test_killed_worker_gives_a_clear_error():
+    stage = _stage_with_a_chunk_done()
     workers = multiprocessing.active_children()
     assert workers, "the stage should run in worker processes"
     os.kill(workers[0].pid, signal.SIGKILL)
@@ -40,17 +46,7 @@ def test_a_worker_that_died_holding_the_task_queue_lock_does_not_hang_the_stage(
     pools = []
     make_pool = worker_pool._make_pool
     monkeypatch.setattr(worker_pool, "_make_pool", lambda *args: pools.append(make_pool(*args)) or pools[-1])
-    n = 12
-    xs, ys = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
-    V = np.stack([xs.ravel(), ys.ravel(), np.zeros(n * n)], axis=1)
-    F = np.array([[a, a + 1, a + n + 1] for i in range(n - 1) for a in range(i * n, i * n + n - 1)]
-                 + [[a, a + n + 1, a + n] for i in range(n - 1) for a in range(i * n, i * n + n - 1)])
-    luma = np.random.default_rng(0).random((64, 64))
-    stage = iter_optimize_triangles(V, F, V[F][:, :, :2], luma, evaluations=20, screen_pixels=32, workers=2,
-                                    chunk_size=4)
-    done = 0
-    while done == 0:
-        done, _ = next(stage)
+    stage = _stage_with_a_chunk_done()
     [pool] = pools
     workers = list(pool._pool)
     assert pool._inqueue._rlock.acquire(timeout=30)  # from now on, as if a dead worker held it
