@@ -52,7 +52,7 @@ class Progress:
     """One step of a run: ``stage`` name, ``done`` of ``total`` units of it, and a line for the status bar.
 
     ``fraction`` is the whole run's fraction done and ``seconds_left`` its estimated time left (None until a
-    hundredth of the run is done), from :data:`STAGE_SHARES` (``core.progress.RunProgress``).
+    hundredth of the run is done by this run), from :data:`STAGE_SHARES` (``core.progress.RunProgress``).
     """
 
     stage: str
@@ -448,6 +448,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             # The faces done by a run of the same key that was cancelled or killed (kept about every half minute).
             partial_key = f"{key}-partial"
             known = triangle_results().get(partial_key) if settings.reuse_triangle_results else None
+            if known is not None:
+                run.skip("triangle", len(known.faces), len(faces))
             stage = iter_optimize_triangles(V, F, uv_in, planes, epsilon=settings.epsilon,
                                             evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
                                             max_screen_pixels=settings.max_screen_pixels,
@@ -464,6 +466,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             notes.append("the triangle-wise results of an earlier run on the same mesh, UV map, texture and settings "
                          "were reused (Clear Cached Results in the sidebar, or --fresh on the command line, "
                          "computes them again)")
+            run.skip("triangle", 1, 1)
             yield step("triangle", 1, 1, "Triangle-wise optimization: reused from an earlier run")
         times["triangle"] = time.perf_counter() - clock
         unevaluated = int(np.count_nonzero(triangles.unevaluated))

@@ -76,7 +76,9 @@ class RunProgress:
     A run is a sequence of stages; stage ``k`` is expected to take ``shares[k]`` of the whole run. The fraction
     done when ``done`` of ``total`` units of a stage are finished is the sum of the earlier stages' shares plus
     that stage's share times ``done / total``; the time left is the time so far scaled by the fraction left over
-    the fraction done. Stages missing from ``shares`` (and a share of 0) count as instantaneous.
+    the fraction done. Stages missing from ``shares`` (and a share of 0) count as instantaneous. Work an earlier
+    run did (:meth:`skip`: results reused or resumed) moves the bar but not the time left, which is the time so
+    far scaled by the fraction left over the fraction this run did.
 
     Parameters
     ----------
@@ -98,21 +100,30 @@ class RunProgress:
         self._clock = clock
         self._started = clock()
         self._fraction = 0.0
+        self._skipped = 0.0
+
+    def _share_of(self, stage, done, total):
+        share = self._start[stage][1] if stage in self._start else 0.0
+        return share * min(max(done / total if total else 1.0, 0.0), 1.0)
 
     def update(self, stage, done, total):
         """Record ``done`` of ``total`` units of ``stage``; return ``(fraction, seconds_left)``.
 
         The fraction never goes back (a stage that restarts its count does not move the bar back). Seconds left
-        are None until a hundredth of the run is done, when the estimate would be noise.
+        are None until this run has done a hundredth of the whole, when the estimate would be noise.
         """
         if stage in self._start:
-            start, share = self._start[stage]
-            fraction = start + share * min(max(done / total if total else 1.0, 0.0), 1.0)
-            self._fraction = max(self._fraction, fraction)
+            self._fraction = max(self._fraction, self._start[stage][0] + self._share_of(stage, done, total))
         elapsed = self._clock() - self._started
-        if self._fraction < 0.01:
+        own = self._fraction - self._skipped
+        if own < 0.01:
             return self._fraction, None
-        return self._fraction, elapsed * (1.0 - self._fraction) / self._fraction
+        return self._fraction, elapsed * (1.0 - self._fraction) / own
+
+    def skip(self, stage, done, total):
+        """Record that ``done`` of ``total`` units of ``stage`` were done before this run (reused results, a
+        stage resumed from a checkpoint); call it before the stage's first :meth:`update`."""
+        self._skipped += self._share_of(stage, done, total)
 
 
 def format_seconds(seconds):

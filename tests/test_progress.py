@@ -36,6 +36,21 @@ def test_fraction_never_goes_back_and_unknown_stages_keep_it():
     assert run.update("b", 2, 0)[0] == pytest.approx(1.0)  # no units: the stage counts as done
 
 
+def test_work_of_an_earlier_run_moves_the_bar_but_not_the_rate():
+    clock = FakeClock()
+    run = RunProgress({"read": 1, "triangle": 6, "mesh": 3}, clock=clock)
+    clock.now += 10
+    run.update("read", 1, 1)  # 0.1 of the run in 10 s
+    run.skip("triangle", 50, 100)  # half the stage kept by a run that was stopped
+    fraction, left = run.update("triangle", 50, 100)
+    assert fraction == pytest.approx(0.4)
+    assert left == pytest.approx(10 * 0.6 / 0.1)  # this run: 0.1 in 10 s, 0.6 left
+    clock.now += 30
+    fraction, left = run.update("triangle", 75, 100)  # 0.1 + 0.15 done by this run in 40 s
+    assert fraction == pytest.approx(0.55)
+    assert left == pytest.approx(40 * 0.45 / 0.25)  # 72 s (0.45 / 0.55 of 40 s without the skip: 33 s)
+
+
 def test_no_time_left_before_a_hundredth_of_the_run():
     clock = FakeClock()
     run = RunProgress({"a": 1}, clock=clock)
