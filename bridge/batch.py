@@ -66,8 +66,9 @@ def textured_objects(object_name=None):
 class _ProgressLines:
     """Progress lines on stderr: at every stage change and end, and at least every ``interval`` seconds.
 
-    A thread prints the latest progress when the pipeline has not yielded for ``interval`` seconds (one long
-    step, such as packing or the bake), adding how long that step has run, so a pipeline log never goes quiet.
+    A thread prints the latest progress when no line came for ``interval`` seconds, so a pipeline log never goes
+    quiet; when the pipeline has not yielded for half of that or more (one long step, such as packing or the
+    bake), the line says how long that step has run.
     """
 
     def __init__(self, interval=PROGRESS_INTERVAL_S):
@@ -97,7 +98,8 @@ class _ProgressLines:
                 self._print(progress, now)
 
     def _print(self, progress, now, waiting=None):
-        suffix = f" (this step running for {format_seconds(waiting)})" if waiting is not None else ""
+        long_step = waiting is not None and waiting >= self.interval / 2
+        suffix = f" (this step running for {format_seconds(waiting)})" if long_step else ""
         _log(f"[{progress.stage}] {progress.line()}{suffix}")
         self._printed = now
 

@@ -89,3 +89,19 @@ def test_cli_lines_at_stage_changes_and_during_a_long_step(capsys):
     assert 2 <= len(heartbeat) <= 4
     assert all(line.startswith("[pack] Packing islands · 80% of the run, 30 s left (this step running for ")
                for line in heartbeat)
+
+
+def test_cli_heartbeat_lines_name_no_long_step_while_the_pipeline_yields(capsys):
+    import time
+
+    from perceptual_uv.bridge.batch import _ProgressLines
+    from perceptual_uv.bridge.pipeline import Progress
+
+    with _ProgressLines(interval=1.0) as lines:
+        end = time.monotonic() + 2.5
+        while time.monotonic() < end:  # a stage whose generator yields every 10 ms (waiting for its workers)
+            lines.update(Progress("triangle", 5, 100, "Triangle-wise optimization: 5/100", 0.05, 200.0))
+            time.sleep(0.01)
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) >= 3  # the first line, then one at least every second
+    assert not any("running for" in line for line in err)
