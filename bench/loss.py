@@ -4,12 +4,19 @@ Usage::
 
     .venv/bin/python bench/loss.py [--model ../shared/models/spot] [--faces 200] [--evals 100] [--seed 0]
     .venv/bin/python bench/loss.py --solvers --model ../shared/models/Avocado --faces 24 --evals 10
+    .venv/bin/python bench/loss.py --views --model ../shared/models/sofa_03 --sample 400 --faces 4
 
 Prints ms per triangle preparation, ms per evaluation (fused numba kernel) at identity, at random
 deformations from the box of Eq. 14 and at shrinks lambda <= 0.5 (where the optimizer spends its samples on
 textured triangles), in batches and in calls of one row, and the plain numpy/scipy reference on a few
 triangles with the ratio of the two. Timings on a shared machine are noisy: compare the ratios printed by
 one run.
+
+``--views`` measures how far the views' drawn faces reach in UV instead: per ``view_faces`` setting
+(``window``, ``one_ring``), the share of textured faces whose drawn faces' texel box is more than 2 and 4 times
+the view's side (faces across a seam, on other islands of the atlas), and, for the ``--faces`` faces with the
+widest boxes among the largest views, ms per evaluation at the identity and at (0, 1, 0.5, 0.5), where a far
+island moves most.
 
 ``--solvers`` compares the re-bake's solvers instead (:data:`core.loss_stack.DISSECTION_COST`): views sized
 as the triangle-wise stage sizes them (one pixel per texel, 64-256 px), every evaluation run once with the
@@ -104,6 +111,48 @@ def compare_solvers(args):
               f"most {worst_abs:.1e}, relative {worst_rel:.1e} where E > 1e-6")
 
 
+def measure_views(args):
+    """How far each view's drawn faces reach in UV, and what the widest cost per evaluation, per view setting."""
+    from perceptual_uv.core import loss
+    from perceptual_uv.core.camera import texel_matched_pixels
+    from perceptual_uv.core.trianglewise import MAX_SCREEN_PIXELS
+
+    V, F, uv, texture = load_any_model(args.model)
+    luma = loss.texture_luma(texture)
+    rng = np.random.default_rng(args.seed)
+    faces = np.sort(rng.choice(len(F), size=min(args.sample, len(F)), replace=False))
+    sizes = texel_matched_pixels(V, F, uv, luma.shape, faces, minimum=64, maximum=MAX_SCREEN_PIXELS)
+    deformations = (("identity", [0.0, 1.0, 1.0, 0.0]), ("(0, 1, 0.5, 0.5)", [0.0, 1.0, 0.5, 0.5]))
+    print(f"model {args.model}: {len(F)} faces, texture {texture.shape}, {len(faces)} faces sampled")
+    widest = None
+    for view_faces in ("window", "one_ring"):
+        problems, sides, views = [], [], []
+        for size in np.unique(sizes):
+            for problem in loss.prepare_triangles(V, F, uv, luma, faces[sizes == size], screen_pixels=int(size),
+                                                  view_faces=view_faces):
+                if not problem.is_constant:
+                    box = problem.box
+                    problems.append(problem)
+                    sides.append(max(box[1] - box[0], box[3] - box[2]))
+                    views.append(size)
+        ratios = np.array(sides) / np.array(views)
+        print(f"{view_faces}: {len(ratios)} textured faces; texel box over view side > 2: {np.mean(ratios > 2):.3f}, "
+              f"> 4: {np.mean(ratios > 4):.3f}, median {np.median(ratios):.3f}")
+        if widest is None:  # the same faces for both settings: the widest boxes among the largest window views
+            order = np.lexsort((np.array(sides), np.array(views)))[::-1]
+            widest = [problems[i].face for i in order[:args.faces]]
+        chosen = [problem for problem in problems if problem.face in widest]
+        chosen[0].evaluate(np.array([[0.0, 0.5, 0.5, 0.0]]))  # compile or load the cache
+        for name, params in deformations:
+            times = []
+            for problem in chosen:
+                t0 = time.perf_counter()
+                problem.evaluate(np.array([params]))
+                times.append(time.perf_counter() - t0)
+            print(f"  faces {sorted(widest)} at {name}: {np.mean(times) * 1e3:.1f} ms per evaluation "
+                  f"(max {np.max(times) * 1e3:.1f})")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     here = pathlib.Path(__file__).resolve().parents[1]
@@ -114,9 +163,14 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--solvers", action="store_true",
                         help="compare the re-bake's solvers at the triangle-wise stage's view sizes instead")
+    parser.add_argument("--views", action="store_true",
+                        help="measure how far the views' drawn faces reach in UV, and what the widest cost")
+    parser.add_argument("--sample", type=int, default=400, help="faces sampled by --views")
     args = parser.parse_args(argv)
     if args.solvers:
         return compare_solvers(args)
+    if args.views:
+        return measure_views(args)
 
     from perceptual_uv.core import loss
     from perceptual_uv.core.one_ring import one_ring_faces
