@@ -59,18 +59,27 @@ def load_any_model(directory):
     return load_with_blender(directory)[:4]
 
 
+def _sampled_views(model, count, seed):
+    """``(V, F, uv, texture, luma, faces, sizes, rng)``: ``count`` faces of ``model`` drawn at random (sorted) and
+    their view sizes as the triangle-wise stage sets them (one pixel per texel, 64-256 px)."""
+    from perceptual_uv.core import loss
+    from perceptual_uv.core.camera import texel_matched_pixels
+    from perceptual_uv.core.trianglewise import MAX_SCREEN_PIXELS
+
+    V, F, uv, texture = load_any_model(model)
+    luma = loss.texture_luma(texture)
+    rng = np.random.default_rng(seed)
+    faces = np.sort(rng.choice(len(F), size=min(count, len(F)), replace=False))
+    sizes = texel_matched_pixels(V, F, uv, luma.shape, faces, minimum=64, maximum=MAX_SCREEN_PIXELS)
+    return V, F, uv, texture, luma, faces, sizes, rng
+
+
 def compare_solvers(args):
     """Time the fused kernel with the band/envelope solve only against the default solver choice."""
     from perceptual_uv.core import loss, loss_stack
-    from perceptual_uv.core.camera import texel_matched_pixels
     from perceptual_uv.core.gmsd import GMSD_C
-    from perceptual_uv.core.trianglewise import MAX_SCREEN_PIXELS
 
-    V, F, uv, texture = load_any_model(args.model)
-    luma = loss.texture_luma(texture)
-    rng = np.random.default_rng(args.seed)
-    faces = np.sort(rng.choice(len(F), size=min(args.faces, len(F)), replace=False))
-    sizes = texel_matched_pixels(V, F, uv, luma.shape, faces, minimum=64, maximum=MAX_SCREEN_PIXELS)
+    V, F, uv, texture, luma, faces, sizes, rng = _sampled_views(args.model, args.faces, args.seed)
     problems = []
     for size in np.unique(sizes):
         batch = loss.prepare_triangles(V, F, uv, luma, faces[sizes == size], screen_pixels=int(size))
@@ -114,14 +123,8 @@ def compare_solvers(args):
 def measure_views(args):
     """How far each view's drawn faces reach in UV, and what the widest cost per evaluation, per view setting."""
     from perceptual_uv.core import loss
-    from perceptual_uv.core.camera import texel_matched_pixels
-    from perceptual_uv.core.trianglewise import MAX_SCREEN_PIXELS
 
-    V, F, uv, texture = load_any_model(args.model)
-    luma = loss.texture_luma(texture)
-    rng = np.random.default_rng(args.seed)
-    faces = np.sort(rng.choice(len(F), size=min(args.sample, len(F)), replace=False))
-    sizes = texel_matched_pixels(V, F, uv, luma.shape, faces, minimum=64, maximum=MAX_SCREEN_PIXELS)
+    V, F, uv, texture, luma, faces, sizes, _ = _sampled_views(args.model, args.sample, args.seed)
     deformations = (("identity", [0.0, 1.0, 1.0, 0.0]), ("(0, 1, 0.5, 0.5)", [0.0, 1.0, 0.5, 0.5]))
     print(f"model {args.model}: {len(F)} faces, texture {texture.shape}, {len(faces)} faces sampled")
     widest = None
