@@ -19,6 +19,7 @@ import os
 import pathlib
 import tempfile
 import time
+import zipfile
 
 import bpy
 import numpy as np
@@ -261,7 +262,7 @@ def _read_triangle_cache(path, key):
                 return None
             fields = {f.name: stored[f.name] for f in dataclasses.fields(TrianglewiseResult) if f.name in stored.files}
             seconds = float(stored["seconds"])
-    except (OSError, ValueError, KeyError):  # a file cut off while written: compute again
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # a file cut off or damaged: compute again
         return None
     for name in ("epsilon", "lambda_min"):
         fields[name] = float(fields[name])

@@ -12,6 +12,7 @@ import os
 import pathlib
 import tempfile
 import time
+import zipfile
 
 import numpy as np
 
@@ -88,7 +89,7 @@ class ResultCache:
             result = self.kind(**values)
         except FileNotFoundError:
             return None
-        except (OSError, ValueError, TypeError, KeyError):  # a truncated or foreign file: compute again
+        except (OSError, ValueError, TypeError, KeyError, zipfile.BadZipFile):  # truncated or foreign: compute again
             path.unlink(missing_ok=True)
             return None
         os.utime(path)

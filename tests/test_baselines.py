@@ -134,6 +134,12 @@ def test_triangle_targets_cut_off_resume_from_the_faces_done(spot, tmp_path, mon
     np.testing.assert_array_equal(calls[-1].params[3], [3.0, 6.0, 9.0, 12.0])
     assert cache.is_file() and not partial.exists()
     np.testing.assert_array_equal(result.params, rows(np.arange(len(result.faces))).params)
+    # a file cut off (a full disk) counts as missing: the stage runs again, from nothing
+    whole = cache.read_bytes()
+    cache.write_bytes(whole[:len(whole) // 2])
+    partial.write_bytes(whole[:len(whole) // 3])
+    baselines.triangle_targets(objects, source_uv=source, epsilon=0.01, evaluations=10, cache=cache)
+    assert calls[-1] is None and len(calls) == 4
 
 
 # --- the post-processing every method gets (fold restore and chart turn, ``core.chartfit.finish_charts``) ---

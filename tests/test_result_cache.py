@@ -65,6 +65,10 @@ def test_a_damaged_file_counts_as_missing_and_clear_removes_everything(tmp_path)
     (tmp_path / "bad.npz").write_bytes(b"not a zip file")
     assert ResultCache(Result, folder=tmp_path).get("bad") is None
     assert not (tmp_path / "bad.npz").exists()
+    whole = (tmp_path / "good.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(whole[:len(whole) // 2])  # a zip cut off (a full disk)
+    assert ResultCache(Result, folder=tmp_path).get("cut") is None
+    assert not (tmp_path / "cut.npz").exists()
     assert cache.clear() == 1
     assert cache.get("good") is None and not list(tmp_path.glob("*.npz"))
 
