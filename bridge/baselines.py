@@ -17,7 +17,6 @@ import dataclasses
 import hashlib
 import os
 import pathlib
-import tempfile
 import time
 import zipfile
 
@@ -30,6 +29,7 @@ from ..core.loss import above_bound
 from ..core.loss_planes import PlaneStack
 from ..core.meshwise import solve_meshwise
 from ..core.overlap import FOLD_TOLERANCE
+from ..core.result_cache import dataclass_from, save_arrays
 from ..core.ssp import solve_ssp, ssp_targets
 from ..core.trianglewise import (MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult, losses_at,
                                  losses_of, optimize_triangles)
@@ -260,23 +260,14 @@ def _read_triangle_cache(path, key):
         with np.load(path) as stored:
             if str(stored["key"]) != key:
                 return None
-            fields = {f.name: stored[f.name] for f in dataclasses.fields(TrianglewiseResult) if f.name in stored.files}
-            seconds = float(stored["seconds"])
+            return dataclass_from(TrianglewiseResult, stored), float(stored["seconds"])
     except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # a file cut off or damaged: compute again
         return None
-    for name in ("epsilon", "lambda_min"):
-        fields[name] = float(fields[name])
-    for name in ("formulation", "backend"):
-        fields[name] = str(fields[name])
-    return TrianglewiseResult(**fields), seconds
 
 
 def _write_triangle_cache(path, key, result, seconds):
-    """Keep ``result`` in ``path`` whole or not at all (written beside it, then renamed)."""
-    path = pathlib.Path(path)
-    with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".tmp.npz", delete=False) as handle:
-        np.savez(handle, key=key, seconds=seconds, **dataclasses.asdict(result))
-    os.replace(handle.name, path)
+    """Keep ``result`` in ``path`` whole or not at all (:func:`core.result_cache.save_arrays`)."""
+    save_arrays(path, key=key, seconds=seconds, **dataclasses.asdict(result))
 
 
 def _triangle_cache_key(V, F, uv, planes, **settings):

@@ -18,7 +18,27 @@ import numpy as np
 
 from ._jit import cache_dir, core_source_hash
 
-__all__ = ["ResultCache", "result_key", "default_cache_folder"]
+__all__ = ["ResultCache", "result_key", "default_cache_folder", "save_arrays", "dataclass_from"]
+
+def save_arrays(path, **arrays):
+    """Write ``arrays`` to the .npz file ``path`` whole or not at all: into a temporary file beside it (suffix
+    ``.partial``), then renamed."""
+    path = pathlib.Path(path)
+    with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".partial", delete=False) as handle:
+        np.savez(handle, **arrays)
+    os.replace(handle.name, path)
+
+
+def dataclass_from(kind, stored):
+    """An instance of the dataclass ``kind`` from an open .npz ``stored``: its fields found there, 0-d arrays as
+    Python scalars, other entries ignored."""
+    return kind(**{field.name: _scalar_or_array(stored[field.name]) for field in dataclasses.fields(kind)
+                   if field.name in stored.files})
+
+
+def _scalar_or_array(value):
+    return value.item() if value.ndim == 0 else value
+
 
 def default_cache_folder():
     """The per-user folder of stage results: ``$PERCEPTUAL_UV_RESULTS_CACHE`` if set, else ``results`` next to
@@ -84,9 +104,7 @@ class ResultCache:
         path = self.folder / f"{key}.npz"
         try:
             with np.load(path, allow_pickle=False) as stored:
-                values = {field.name: self._value(stored, field.name) for field in dataclasses.fields(self.kind)
-                          if field.name in stored.files}
-            result = self.kind(**values)
+                result = dataclass_from(self.kind, stored)
         except FileNotFoundError:
             return None
         except (OSError, ValueError, TypeError, KeyError, zipfile.BadZipFile):  # truncated or foreign: compute again
@@ -105,9 +123,7 @@ class ResultCache:
             self.folder.mkdir(parents=True, exist_ok=True)
             arrays = {field.name: np.asarray(getattr(result, field.name)) for field in dataclasses.fields(result)
                       if getattr(result, field.name) is not None}
-            with tempfile.NamedTemporaryFile(dir=self.folder, suffix=".partial", delete=False) as handle:
-                np.savez(handle, **arrays)
-            os.replace(handle.name, self.folder / f"{key}.npz")
+            save_arrays(self.folder / f"{key}.npz", **arrays)
             self._trim()
         except OSError:  # a read-only or full disk costs the next run its time, nothing else
             pass
@@ -128,10 +144,6 @@ class ResultCache:
             path.unlink(missing_ok=True)
             removed += 1
         return removed
-
-    def _value(self, stored, name):
-        value = stored[name]
-        return value.item() if value.ndim == 0 else value
 
     def _remember(self, key, result):
         self._recent[key] = result
