@@ -156,7 +156,10 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
     """
     count = points.shape[0]
     n_planes = references.shape[0]
-    # Conservative box of the deformed continuous coordinates from the corners of the input box.
+    # Box of the deformed continuous coordinates: the deformed corners of the input box bound it without a pass
+    # over the points. Under a turn or a shear those corners reach up to sqrt(2) times further than any point,
+    # so a footprint nearly as wide as the texture (a view drawing faces from across the atlas) would look
+    # as if it could alias under REPEAT and take the slow fallback: then the exact box from the points decides.
     xlo = ylo = np.inf
     xhi = yhi = -np.inf
     for corner in range(4):
@@ -166,7 +169,16 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
         ylo = min(ylo, y)
         yhi = max(yhi, y)
     if not (xhi - xlo < w - 4 and yhi - ylo < h - 4):
-        return False
+        xlo = ylo = np.inf
+        xhi = yhi = -np.inf
+        for p in range(count):
+            x, y = _deform(points[p, 0], points[p, 1], a00, a01, a10, a11, cx, cy)
+            xlo = min(xlo, x)
+            xhi = max(xhi, x)
+            ylo = min(ylo, y)
+            yhi = max(yhi, y)
+        if not (xhi - xlo < w - 4 and yhi - ylo < h - 4):
+            return False
     ox = int(np.floor(xlo)) - 1  # one cell of slack for round-off
     oy = int(np.floor(ylo)) - 1
     width = int(np.floor(xhi)) - ox + 2

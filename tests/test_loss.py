@@ -265,6 +265,38 @@ def test_one_ring_across_a_uv_seam(textured):
     np.testing.assert_allclose(e, loss._evaluate_reference(problem, params), rtol=1e-7, atol=1e-12)
 
 
+def test_a_turned_view_across_the_atlas_keeps_the_cell_path(textured):
+    # Two islands at opposite corners of a 128 x 128 atlas, on its diagonal: the drawn points' box is ~100 x 100
+    # texels. Shrinking the diagonal by 4 and turning by 45 degrees maps the deformed corners of that box across
+    # ~141 texels (more than the texture: REPEAT could alias) while the points themselves stay within ~35.
+    # The cell path must take the points' own box (it fell back to the per-pixel path, ~27x slower on sofa_03's
+    # widest views) and agree with the numpy reference.
+    from perceptual_uv.core.deformation import jacobian
+    from perceptual_uv.core.loss_stack import _rebake_render_cells
+
+    V, F, uv, _, _ = textured
+    texture = np.random.default_rng(11).random((128, 128))
+    split = uv * 0.2
+    right = V[F][:, :, 0].mean(axis=1) > 0.5
+    split[right] += [0.75, 0.75]
+    face = int(np.flatnonzero(right & (np.abs(V[F][:, :, 0].mean(axis=1) - 0.58) < 0.05)
+                              & (np.abs(V[F][:, :, 1].mean(axis=1) - 0.5) < 0.1))[0])
+    problem = loss.triangle_problem(V, F, split, texture, face)
+    row = [np.pi / 4, 0.25, 1.0, np.pi / 4]
+    R, S = jacobian(row)
+    A = R @ S
+    box = problem.box
+    corners = np.array([[box[k & 1], box[2 + (k >> 1)]] for k in range(4)]) @ A.T
+    assert np.ptp(corners[:, 0]) > 128 and np.ptp(problem.points @ A.T, axis=0).max() < 40
+    h, w = problem.texture_shape
+    rendered = np.empty((1, len(problem.points)))
+    assert _rebake_render_cells(problem.points, problem.reference[None], box, *A.ravel(), *problem.centre, w, h,
+                                problem.ridge, rendered)
+    params = np.vstack([row, [np.pi / 4, 0.5, 1.0, np.pi / 4], IDENTITY])
+    np.testing.assert_allclose(problem.evaluate(params), loss._evaluate_reference(problem, params),
+                               rtol=1e-7, atol=1e-12)
+
+
 def test_a_sliver_sees_the_panel_around_it():
     # A flat unit panel cut into 40 horizontal strips of two triangles each (aspect ratio ~80), with 64 x 64
     # noise mapped one to one.
