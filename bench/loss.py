@@ -93,9 +93,8 @@ def compare_solvers(args):
     solvers = (("band/envelope", np.inf), ("default", float(loss_stack.DISSECTION_COST)))
 
     def kernel_args(problem, params):
-        h, w = problem.texture_shape
         return (params, problem.points, problem.pooled_index, problem.box, problem.reference[None],
-                problem.reference_gradient[None], problem.centre, w, h, problem.ridge, GMSD_C, True)
+                problem.reference_gradient[None], problem.centre, problem.ridge, GMSD_C, True)
 
     for _, cost in solvers:  # compile or load the cache
         loss_stack._evaluate_planes_kernel(*kernel_args(problems[0], small[:1]), cost)

@@ -328,14 +328,14 @@ def _points_box(points):
     return np.array([points[:, 0].min(), points[:, 0].max(), points[:, 1].min(), points[:, 1].max()])
 
 
-def _evaluate_kernel(params, points, pooled_index, box, reference, reference_gradient, centre, w, h, ridge,
-                     c_gmsd, use_cells):
+def _evaluate_kernel(params, points, pooled_index, box, reference, reference_gradient, centre, ridge, c_gmsd,
+                     use_cells):
     """E of one plane, (k, 4) params -> (k,): :func:`.loss_stack._evaluate_planes_kernel` with P = 1.
 
     Called from Python, not from another kernel: a numba caller would inline the kernel into a copy that ran
     ~6 % slower."""
     return _evaluate_planes_kernel(params, points, pooled_index, box, reference[None], reference_gradient[None],
-                                   centre, w, h, ridge, c_gmsd, use_cells)[:, 0]
+                                   centre, ridge, c_gmsd, use_cells)[:, 0]
 
 
 # ---------------------------------------------------------------------------------------------------- problems
@@ -413,9 +413,8 @@ class TriangleProblem:
             within = (np.abs(params[:, 1]) <= 1.0) & (np.abs(params[:, 2]) <= 1.0)
             if within.all():
                 return np.zeros(len(params))
-        h, w = self.texture_shape
         return _evaluate_kernel(params, self.points, self.pooled_index, self.box, self.reference,
-                                self.reference_gradient, self.centre, w, h, self.ridge, GMSD_C, True)
+                                self.reference_gradient, self.centre, self.ridge, GMSD_C, True)
 
     def reference_image(self):
         """(n, n) reference luma screen, row 0 = bottom of the view, 0 where nothing is hit."""
@@ -435,7 +434,15 @@ class TriangleProblem:
             raise ValueError("deformed_image takes one parameter row")
         R, S = jacobian(params[0])
         points = deform_points(self.points, R @ S, self.centre)
-        texels, weights = bilinear_weights(points, self.texture_shape)
+        # Texels by position without REPEAT wrapping, as the kernels number them: moved by whole texels to
+        # positive coordinates (the weights keep their fractions) on a lattice wider than the footprint.
+        if len(points):
+            low = np.floor(points.min(axis=0)) - 1.0
+            span = np.ceil(points.max(axis=0) - low).astype(np.int64) + 2
+            points = points - low
+        else:
+            span = np.ones(2, np.int64)
+        texels, weights = bilinear_weights(points, (int(span[1]), int(span[0])))
         n = self.screen_pixels
         image = np.zeros(n * n)
         if len(texels):

@@ -411,9 +411,8 @@ class StackProblem:
             from .loss_stack import _evaluate_planes_kernel
 
             references, gradients = self._stacked_arrays(rows)
-            h, w = lead.texture_shape
             out[:, list(rows)] = _evaluate_planes_kernel(own, lead.points, lead.pooled_index, lead.box, references,
-                                                         gradients, lead.centre, w, h, lead.ridge, GMSD_C, True)
+                                                         gradients, lead.centre, lead.ridge, GMSD_C, True)
         return out
 
     def evaluate(self, params):

@@ -55,8 +55,11 @@ def _deform(px, py, a00, a01, a10, a11, cx, cy):
 
 
 @njit
-def _deformed_ids(points, a00, a01, a10, a11, cx, cy, w, h):
-    """Numba: texel ids (first occurrence, local) and bilinear weights of the deformed points."""
+def _deformed_ids(points, a00, a01, a10, a11, cx, cy):
+    """Numba: texel ids (first occurrence, local) and bilinear weights of the deformed points.
+
+    A texel is its integer position in the plane of the deformed points, without REPEAT wrapping: the re-baked
+    neighbourhood gets texels of its own wherever it reaches (see :func:`_rebake_render_cells`)."""
     count = points.shape[0]
     base_x = np.empty(count, np.int64)
     base_y = np.empty(count, np.int64)
@@ -86,28 +89,25 @@ def _deformed_ids(points, a00, a01, a10, a11, cx, cy, w, h):
         return ids, weights, np.zeros(0, np.int64)
     width = max_x - min_x + 2
     height = max_y - min_y + 2
-    if width <= w and height <= h and width * height <= 16 * count + 4096:
-        # No two cells of the box alias under REPEAT: the unwrapped cell is the texel's identity.
+    if width * height <= 16 * count + 4096:
         grid = np.full(width * height, -1, np.int64)
         texel = np.empty(4 * count, np.int64)
         n_texels = 0
         for p in range(count):
             for k in range(4):
-                gx = base_x[p] - min_x + (k & 1)
-                gy = base_y[p] - min_y + (k >> 1)
-                cell = gy * width + gx
+                cell = (base_y[p] - min_y + (k >> 1)) * width + base_x[p] - min_x + (k & 1)
                 t = grid[cell]
                 if t < 0:
                     t = n_texels
                     grid[cell] = t
-                    texel[t] = ((gy + min_y) % h) * w + (gx + min_x) % w
+                    texel[t] = cell
                     n_texels += 1
                 ids[p, k] = t
         return ids, weights, texel[:n_texels]
     keys = np.empty((count, 4), np.int64)
     for p in range(count):
         for k in range(4):
-            keys[p, k] = ((base_y[p] + (k >> 1)) % h) * w + (base_x[p] + (k & 1)) % w
+            keys[p, k] = (base_y[p] - min_y + (k >> 1)) * width + base_x[p] - min_x + (k & 1)
     ids, texel = _first_occurrence_ids(keys)
     return ids, weights, texel
 
@@ -130,7 +130,7 @@ def _add_off_diagonal(env, offset, first, i, j, value):
 
 
 @njit
-def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w, h, ridge, rendered,
+def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ridge, rendered,
                          dissection_cost=DISSECTION_COST):
     """Numba: deform, re-bake (Eq. 11) and re-render ``P`` planes in one sweep; False if the caller must fall
     back.
@@ -141,13 +141,17 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
     (:func:`.bake_lsq._band_substitute_planes`, :func:`.bake_lsq._envelope_substitute_planes`,
     :func:`.multifrontal._substitute`). One plane (P = 1) is the single-map loss.
 
+    A texel is its integer position in the plane of the deformed points, without REPEAT wrapping: the re-baked
+    neighbourhood gets texels of its own wherever it reaches, as the packed atlas gives every chart texels of
+    its own. Two points share a texel only where the deformed UVs overlap, never because a footprint wider
+    than the texture wraps around it (a view drawing faces from across the atlas, turned).
+
     Pixels whose deformed points fall in the same texel cell (same 4 texels) are pooled first: each cell
     keeps the sums of its 10 weight products and of 4 weighted targets per plane, so the normal equations
     are assembled from cells instead of pixels (magnified footprints have ~10-20 pixels per cell). Texels are
     numbered row by row along the shorter side of their bounding box, or in the order the pixels first read
     them, whichever gives the smaller envelope (the first suits compact footprints, the second minified ones
-    where pixels read disjoint texel groups). Falls back when the footprint's box could alias under REPEAT
-    wrapping or is much larger than the pixel count.
+    where pixels read disjoint texel groups). Falls back only when round-off puts a point outside the box.
 
     The solve is a band or envelope Cholesky in that numbering, or, when its work estimate exceeds
     ``dissection_cost`` (default :data:`DISSECTION_COST`), a multifrontal Cholesky in nested-dissection order
@@ -157,9 +161,8 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
     count = points.shape[0]
     n_planes = references.shape[0]
     # Box of the deformed continuous coordinates: the deformed corners of the input box bound it without a pass
-    # over the points. Under a turn or a shear those corners reach up to sqrt(2) times further than any point,
-    # so a footprint nearly as wide as the texture (a view drawing faces from across the atlas) would look
-    # as if it could alias under REPEAT and take the slow fallback: then the exact box from the points decides.
+    # over the points. Under a turn or a shear those corners reach up to sqrt(2) times further than any point:
+    # when that box is too sparse for a dense grid, the exact box from the points decides.
     xlo = ylo = np.inf
     xhi = yhi = -np.inf
     for corner in range(4):
@@ -168,7 +171,11 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
         xhi = max(xhi, x)
         ylo = min(ylo, y)
         yhi = max(yhi, y)
-    if not (xhi - xlo < w - 4 and yhi - ylo < h - 4):
+    ox = int(np.floor(xlo)) - 1  # one cell of slack for round-off
+    oy = int(np.floor(ylo)) - 1
+    width = int(np.floor(xhi)) - ox + 2
+    height = int(np.floor(yhi)) - oy + 2
+    if width * height > 16 * count + 4096:
         xlo = ylo = np.inf
         xhi = yhi = -np.inf
         for p in range(count):
@@ -177,14 +184,10 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
             xhi = max(xhi, x)
             ylo = min(ylo, y)
             yhi = max(yhi, y)
-        if not (xhi - xlo < w - 4 and yhi - ylo < h - 4):
-            return False
-    ox = int(np.floor(xlo)) - 1  # one cell of slack for round-off
-    oy = int(np.floor(ylo)) - 1
-    width = int(np.floor(xhi)) - ox + 2
-    height = int(np.floor(yhi)) - oy + 2
-    if width + 1 > w or height + 1 > h:
-        return False
+        ox = int(np.floor(xlo)) - 1
+        oy = int(np.floor(ylo)) - 1
+        width = int(np.floor(xhi)) - ox + 2
+        height = int(np.floor(yhi)) - oy + 2
     # Cells are found through a dense grid over the box, or through a hash table when the box is sparse (a
     # one-ring across UV seams spans distant islands; minified footprints spread out).
     dense = width * height <= 16 * count + 4096
@@ -480,8 +483,8 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, w,
 
 
 @njit
-def _evaluate_planes_kernel(params, points, pooled_index, box, references, reference_gradients, centre, w, h,
-                            ridge, c_gmsd, use_cells, dissection_cost=DISSECTION_COST):
+def _evaluate_planes_kernel(params, points, pooled_index, box, references, reference_gradients, centre, ridge,
+                            c_gmsd, use_cells, dissection_cost=DISSECTION_COST):
     """Numba: E of ``P`` planes on one texel grid, (k, 4) params -> (k, P) (``references`` (P, count),
     ``reference_gradients`` (P, m, m)); :func:`.loss._evaluate_kernel` is the case P = 1.
     ``dissection_cost`` chooses the re-bake's solver (:func:`_rebake_render_cells`)."""
@@ -517,10 +520,9 @@ def _evaluate_planes_kernel(params, points, pooled_index, box, references, refer
         a10 = sa * s00 + ca * s01
         a11 = sa * s01 + ca * s11
         done = count > 0 and use_cells and _rebake_render_cells(
-            points, references, box, a00, a01, a10, a11, centre[0], centre[1], w, h, ridge, rendered,
-            dissection_cost)
+            points, references, box, a00, a01, a10, a11, centre[0], centre[1], ridge, rendered, dissection_cost)
         if not done:
-            ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1], w, h)
+            ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1])
             for q in range(n_planes):
                 values = _solve_normal_equations(ids, weights, references[q], texel.shape[0], ridge)
                 rendered[q, :] = _render_ids(ids, weights, values)

@@ -226,23 +226,30 @@ def test_cell_path_and_pixel_path_agree(textured):
     V, F, uv, texture, face = textured
     problem = loss.triangle_problem(V, F, uv, texture, face)
     params = np.vstack([IDENTITY, random_params(np.random.default_rng(8), 6)])
-    h, w = problem.texture_shape
     args = (params, problem.points, problem.pooled_index, problem.box, problem.reference,
-            problem.reference_gradient, problem.centre, w, h, problem.ridge, loss.GMSD_C)
+            problem.reference_gradient, problem.centre, problem.ridge, loss.GMSD_C)
     np.testing.assert_allclose(loss._evaluate_kernel(*args, True), loss._evaluate_kernel(*args, False),
                                rtol=1e-7, atol=1e-12)
 
 
-def test_footprint_larger_than_the_texture_wraps(textured):
-    # UVs spanning ~1.5 texture periods of a 12 x 10 texture: texels alias under REPEAT, the kernel takes its
-    # general path, and must still match the numpy reference.
+def test_a_footprint_wider_than_the_texture_gets_texels_of_its_own(textured):
+    # UVs 12 times the grid's: the view's points span ~21 x 17 texels of a 12 x 10 texture, more than one
+    # period each way. The re-bake numbers texels by position without REPEAT wrapping, so E is the same as on
+    # that texture tiled 8 x 8 (96 x 80) with UVs 8 times smaller: the same texel-space points, which stay
+    # within one period there under every deformation of the box (at most the 27-texel diagonal across).
+    # With wrapping, the 12 x 10 texture would make pixels a period apart share texels. Both must also
+    # match the numpy reference.
     V, F, uv, _, face = textured
     texture = np.random.default_rng(9).random((10, 12))
-    big = uv * 6.0
-    problem = loss.triangle_problem(V, F, big, texture, face, screen_pixels=32)
-    params = np.vstack([IDENTITY, random_params(np.random.default_rng(10), 3)])
-    np.testing.assert_allclose(problem.evaluate(params), loss._evaluate_reference(problem, params),
-                               rtol=1e-7, atol=1e-12)
+    params = np.vstack([IDENTITY, random_params(np.random.default_rng(10), 5), [np.pi / 4, 1.0, 1.0, 0.0]])
+    small = loss.triangle_problem(V, F, uv * 12.0, texture, face, screen_pixels=32)
+    tiled = loss.triangle_problem(V, F, uv * 1.5, np.tile(texture, (8, 8)), face, screen_pixels=32)
+    np.testing.assert_array_equal(small.points, tiled.points)
+    np.testing.assert_array_equal(small.reference, tiled.reference)
+    assert np.all(np.ptp(small.points, axis=0) > [12, 10])
+    e = small.evaluate(params)
+    np.testing.assert_allclose(e, tiled.evaluate(params), rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(e, loss._evaluate_reference(small, params), rtol=1e-7, atol=1e-12)
 
 
 def test_one_ring_across_a_uv_seam(textured):
@@ -265,12 +272,11 @@ def test_one_ring_across_a_uv_seam(textured):
     np.testing.assert_allclose(e, loss._evaluate_reference(problem, params), rtol=1e-7, atol=1e-12)
 
 
-def test_a_turned_view_across_the_atlas_keeps_the_cell_path(textured):
+def test_a_turned_view_across_the_atlas_takes_the_points_box(textured):
     # Two islands at opposite corners of a 128 x 128 atlas, on its diagonal: the drawn points' box is ~100 x 100
     # texels. Shrinking the diagonal by 4 and turning by 45 degrees maps the deformed corners of that box across
-    # ~141 texels (more than the texture: REPEAT could alias) while the points themselves stay within ~35.
-    # The cell path must take the points' own box (it fell back to the per-pixel path, ~27x slower on sofa_03's
-    # widest views) and agree with the numpy reference.
+    # ~141 texels while the points themselves stay within ~35: the cell path's grid comes from the points' own
+    # box, and the result agrees with the numpy reference.
     from perceptual_uv.core.deformation import jacobian
     from perceptual_uv.core.loss_stack import _rebake_render_cells
 
@@ -288,9 +294,8 @@ def test_a_turned_view_across_the_atlas_keeps_the_cell_path(textured):
     box = problem.box
     corners = np.array([[box[k & 1], box[2 + (k >> 1)]] for k in range(4)]) @ A.T
     assert np.ptp(corners[:, 0]) > 128 and np.ptp(problem.points @ A.T, axis=0).max() < 40
-    h, w = problem.texture_shape
     rendered = np.empty((1, len(problem.points)))
-    assert _rebake_render_cells(problem.points, problem.reference[None], box, *A.ravel(), *problem.centre, w, h,
+    assert _rebake_render_cells(problem.points, problem.reference[None], box, *A.ravel(), *problem.centre,
                                 problem.ridge, rendered)
     params = np.vstack([row, [np.pi / 4, 0.5, 1.0, np.pi / 4], IDENTITY])
     np.testing.assert_allclose(problem.evaluate(params), loss._evaluate_reference(problem, params),

@@ -117,10 +117,9 @@ def test_multifrontal_solve_matches_a_dense_solve(pixels_per_cell):
 def triangle_args(problem, params, planes=None):
     """Arguments of loss_stack._evaluate_planes_kernel for a problem, or the same-shaped ``planes`` of a stack."""
     planes = planes or [problem]
-    h, w = problem.texture_shape
     return (np.atleast_2d(np.asarray(params, float)), problem.points, problem.pooled_index, problem.box,
             np.stack([p.reference for p in planes]), np.stack([p.reference_gradient for p in planes]),
-            problem.centre, w, h, problem.ridge, GMSD_C, True)
+            problem.centre, problem.ridge, GMSD_C, True)
 
 
 def deformation(row):
@@ -131,8 +130,7 @@ def deformation(row):
 
 
 def texels_read(problem, row):
-    h, w = problem.texture_shape
-    return len(_deformed_ids(problem.points, *deformation(row), *problem.centre, w, h)[2])
+    return len(_deformed_ids(problem.points, *deformation(row), *problem.centre)[2])
 
 
 def assert_same_rebake(problem, params, planes=None, rtol=1e-9):
@@ -140,14 +138,13 @@ def assert_same_rebake(problem, params, planes=None, rtol=1e-9):
     row) reads enough texels for a dissection several levels deep."""
     planes = planes or [problem]
     references = np.stack([p.reference for p in planes])
-    h, w = problem.texture_shape
     assert texels_read(problem, params[0]) > 8 * LEAF_TEXELS
     for row in np.atleast_2d(params):
         rendered = {}
         for name, threshold in (("nested", NESTED), ("direct", DIRECT)):
             out = np.empty_like(references)
             assert _rebake_render_cells(problem.points, references, problem.box, *deformation(row), *problem.centre,
-                                        w, h, problem.ridge, out, threshold)
+                                        problem.ridge, out, threshold)
             rendered[name] = out
         np.testing.assert_allclose(rendered["nested"], rendered["direct"], rtol=0, atol=1e-9 * np.abs(references).max())
     args = triangle_args(problem, params, planes)
