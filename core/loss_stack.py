@@ -129,6 +129,23 @@ def _add_off_diagonal(env, offset, first, i, j, value):
     env[offset[i] - first[i] + j] += value
 
 
+@njit(inline="always")
+def _cell_grid(points, a00, a01, a10, a11, cx, cy):
+    """Numba: origin ``(ox, oy)`` and size ``(width, height)`` of a grid of texel cells that holds the deformed
+    points, with one cell of slack for round-off."""
+    xlo = ylo = np.inf
+    xhi = yhi = -np.inf
+    for p in range(points.shape[0]):
+        x, y = _deform(points[p, 0], points[p, 1], a00, a01, a10, a11, cx, cy)
+        xlo = min(xlo, x)
+        xhi = max(xhi, x)
+        ylo = min(ylo, y)
+        yhi = max(yhi, y)
+    ox = int(np.floor(xlo)) - 1
+    oy = int(np.floor(ylo)) - 1
+    return ox, oy, int(np.floor(xhi)) - ox + 2, int(np.floor(yhi)) - oy + 2
+
+
 @njit
 def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ridge, rendered,
                          dissection_cost=DISSECTION_COST):
@@ -160,34 +177,16 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ri
     """
     count = points.shape[0]
     n_planes = references.shape[0]
-    # Box of the deformed continuous coordinates: the deformed corners of the input box bound it without a pass
-    # over the points. Under a turn or a shear those corners reach up to sqrt(2) times further than any point:
-    # when that box is too sparse for a dense grid, the exact box from the points decides.
-    xlo = ylo = np.inf
-    xhi = yhi = -np.inf
+    # The deformed corners of the input box bound the deformed points without a pass over them. Under a turn or a
+    # shear those corners reach up to sqrt(2) times further than any point: when their box is too sparse for a
+    # dense grid, the exact box from the points decides.
+    corners = np.empty((4, 2))
     for corner in range(4):
-        x, y = _deform(box[corner & 1], box[2 + (corner >> 1)], a00, a01, a10, a11, cx, cy)
-        xlo = min(xlo, x)
-        xhi = max(xhi, x)
-        ylo = min(ylo, y)
-        yhi = max(yhi, y)
-    ox = int(np.floor(xlo)) - 1  # one cell of slack for round-off
-    oy = int(np.floor(ylo)) - 1
-    width = int(np.floor(xhi)) - ox + 2
-    height = int(np.floor(yhi)) - oy + 2
+        corners[corner, 0] = box[corner & 1]
+        corners[corner, 1] = box[2 + (corner >> 1)]
+    ox, oy, width, height = _cell_grid(corners, a00, a01, a10, a11, cx, cy)
     if width * height > 16 * count + 4096:
-        xlo = ylo = np.inf
-        xhi = yhi = -np.inf
-        for p in range(count):
-            x, y = _deform(points[p, 0], points[p, 1], a00, a01, a10, a11, cx, cy)
-            xlo = min(xlo, x)
-            xhi = max(xhi, x)
-            ylo = min(ylo, y)
-            yhi = max(yhi, y)
-        ox = int(np.floor(xlo)) - 1
-        oy = int(np.floor(ylo)) - 1
-        width = int(np.floor(xhi)) - ox + 2
-        height = int(np.floor(yhi)) - oy + 2
+        ox, oy, width, height = _cell_grid(points, a00, a01, a10, a11, cx, cy)
     # Cells are found through a dense grid over the box, or through a hash table when the box is sparse (a
     # one-ring across UV seams spans distant islands; minified footprints spread out).
     dense = width * height <= 16 * count + 4096
