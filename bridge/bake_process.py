@@ -31,6 +31,8 @@ import tempfile
 
 import numpy as np
 
+from ..core.atomic import atomic_path
+
 __all__ = ["iter_bake_in_background", "WAIT_SECONDS"]
 
 # Seconds between two yields while the child bakes (the modal operator's slice is 0.1 s).
@@ -230,13 +232,6 @@ def _find_record(objects, source_uv, wanted):
     return fallback
 
 
-def _save_atomically(path, save):
-    partial = f"{path}.partial"
-    with open(partial, "wb") as file:
-        save(file)
-    os.replace(partial, path)
-
-
 def _run(folder):
     """The child's work: load the objects, bake every map of the manifest, write the pixels."""
     import bpy
@@ -258,7 +253,8 @@ def _run(folder):
                                             resolution=wanted["resolution"], margin=wanted["margin"])
         with open(os.path.join(folder, f"map_{number}.json"), "w", encoding="utf-8") as file:
             json.dump({"alpha": bool(use_alpha)}, file)
-        _save_atomically(os.path.join(folder, f"map_{number}.npy"), lambda file: np.save(file, pixels))
+        with atomic_path(os.path.join(folder, f"map_{number}.npy")) as temporary:
+            np.save(temporary, pixels)
     with open(os.path.join(folder, _DONE), "w", encoding="utf-8"):
         pass
 

@@ -15,6 +15,7 @@ import time
 
 import bpy
 
+from ..core.atomic import atomic_path
 from ..core.progress import format_seconds
 
 __all__ = ["textured_objects", "optimize_file", "evaluate_file"]
@@ -122,20 +123,6 @@ def _writable_folder(folder):
     return folder
 
 
-@contextlib.contextmanager
-def _publish(path):
-    """Yield a temporary path next to ``path``; rename it into place only if the block finishes."""
-    path = pathlib.Path(path).resolve()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.stem}.partial{path.suffix}")
-    try:
-        yield temporary
-        os.replace(temporary, path)
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            temporary.unlink()
-
-
 def optimize_file(args):
     """``optimize``: see DESIGN's CLI contract; ``args`` comes from :func:`perceptual_uv.cli.parse_args`."""
     from .mesh_io import import_model
@@ -167,7 +154,7 @@ def optimize_file(args):
     report = dict(result.report, input=str(args.input), output=str(out))
     image_file = report.get("image_file")
     try:
-        with _publish(out) as temporary:
+        with atomic_path(out) as temporary:
             try:
                 if out.suffix.lower() == ".glb":
                     from .gltf_export import export_glb
@@ -179,7 +166,7 @@ def optimize_file(args):
                 reason = str(error).strip().splitlines()[-1] if str(error).strip() else "unknown error"
                 raise ValueError(f"could not write {out}: {reason}") from None
         if args.report:
-            with _publish(args.report) as temporary:
+            with atomic_path(args.report) as temporary:
                 temporary.write_text(json.dumps(report, indent=2) + "\n")
     except OSError as error:
         if image_file:

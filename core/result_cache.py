@@ -10,23 +10,20 @@ import hashlib
 import json
 import os
 import pathlib
-import tempfile
 import time
 import zipfile
 
 import numpy as np
 
 from ._jit import cache_dir, core_source_hash
+from .atomic import atomic_path
 
 __all__ = ["ResultCache", "result_key", "default_cache_folder", "save_arrays", "dataclass_from"]
 
 def save_arrays(path, **arrays):
-    """Write ``arrays`` to the .npz file ``path`` whole or not at all: into a temporary file beside it (suffix
-    ``.partial``), then renamed."""
-    path = pathlib.Path(path)
-    with tempfile.NamedTemporaryFile(dir=path.parent, suffix=".partial", delete=False) as handle:
+    """Write ``arrays`` to the .npz file ``path`` whole or not at all (:func:`.atomic.atomic_path`)."""
+    with atomic_path(path) as temporary, open(temporary, "wb") as handle:
         np.savez(handle, **arrays)
-    os.replace(handle.name, path)
 
 
 def dataclass_from(kind, stored):
