@@ -14,9 +14,10 @@ one run.
 
 ``--views`` measures how far the views' drawn faces reach in UV instead: per ``view_faces`` setting
 (``window``, ``one_ring``), the share of textured faces whose drawn faces' texel box is more than 2 and 4 times
-the view's side (faces across a seam, on other islands of the atlas), and, for the ``--faces`` faces with the
-widest boxes among the largest views, ms per evaluation at the identity and at (0, 1, 0.5, 0.5), where a far
-island moves most.
+the view's side (faces across a seam, on other islands of the atlas) and of those whose box diagonal reaches
+the texture's side minus 4 (a deformed footprint can then be wider than the texture), and, for the
+``--faces`` faces with the widest boxes among the largest views, ms per evaluation at the identity, at (0, 1,
+0.5, 0.5) and turned near-isometrically by 66 degrees.
 
 ``--solvers`` compares the re-bake's solvers instead (:data:`core.loss_stack.DISSECTION_COST`): views sized
 as the triangle-wise stage sizes them (one pixel per texel, 64-256 px), every evaluation run once with the
@@ -124,11 +125,12 @@ def measure_views(args):
     from perceptual_uv.core import loss
 
     V, F, uv, texture, luma, faces, sizes, _ = _sampled_views(args.model, args.sample, args.seed)
-    deformations = (("identity", [0.0, 1.0, 1.0, 0.0]), ("(0, 1, 0.5, 0.5)", [0.0, 1.0, 0.5, 0.5]))
+    deformations = (("identity", [0.0, 1.0, 1.0, 0.0]), ("(0, 1, 0.5, 0.5)", [0.0, 1.0, 0.5, 0.5]),
+                    ("(1.15, 0.9, 0.95, 1.53)", [1.146, 0.901, 0.948, 1.528]))
     print(f"model {args.model}: {len(F)} faces, texture {texture.shape}, {len(faces)} faces sampled")
     widest = None
     for view_faces in ("window", "one_ring"):
-        problems, sides, views = [], [], []
+        problems, sides, views, wide = [], [], [], []
         for size in np.unique(sizes):
             for problem in loss.prepare_triangles(V, F, uv, luma, faces[sizes == size], screen_pixels=int(size),
                                                   view_faces=view_faces):
@@ -137,9 +139,11 @@ def measure_views(args):
                     problems.append(problem)
                     sides.append(max(box[1] - box[0], box[3] - box[2]))
                     views.append(size)
+                    wide.append(np.hypot(box[1] - box[0], box[3] - box[2]) >= min(problem.texture_shape) - 4)
         ratios = np.array(sides) / np.array(views)
         print(f"{view_faces}: {len(ratios)} textured faces; texel box over view side > 2: {np.mean(ratios > 2):.3f}, "
-              f"> 4: {np.mean(ratios > 4):.3f}, median {np.median(ratios):.3f}")
+              f"> 4: {np.mean(ratios > 4):.3f}, median {np.median(ratios):.3f}; box diagonal >= texture side - 4: "
+              f"{np.mean(wide):.3f}")
         if widest is None:  # the same faces for both settings: the widest boxes among the largest window views
             order = np.lexsort((np.array(sides), np.array(views)))[::-1]
             widest = [problems[i].face for i in order[:args.faces]]
