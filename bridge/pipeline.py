@@ -152,6 +152,7 @@ def _unique_uv_name(objects, wanted):
 
 MAX_UV_MAPS = 8  # Blender's limit per mesh
 LOW_COVERAGE = 0.25  # below it the image holds more than 4 times the texels the cost counts
+SHARED_TEXELS = 1.1  # above it the input's islands share a tenth of their texels or more (tiled, laid on each other)
 
 
 def _one_object_per_mesh(objects):
@@ -432,6 +433,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                    time.perf_counter(), step)
         height, width = texture.shape[:2]
         m = len(F)
+        reuse = texel_cost.texel_reuse(uv_in, (height, width))
+        if reuse > SHARED_TEXELS:
+            notes.append(f"the input's UV islands use each texel they cover {reuse:.1f} times on average (tiled UVs or "
+                         "islands laid on the same texels); the new UV map gives every triangle texels of its own, so "
+                         f"it needs about {reuse:.1f} times the input's image memory for the input's texel density: "
+                         "at a lower cost, downscaling the input's images may keep more detail")
         per_object = [mesh.object_index == index for index in range(len(objects))]
 
         yield step("read", 5, _READ_STEPS, "Looking for the triangle-wise results of an earlier run")
@@ -604,6 +611,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "input_resolution": [int(width), int(height)],
             "relative_cost": reference_cost,
             "image_coverage": float(coverage),
+            "input_texel_reuse": float(reuse),
             "times_s": {key: round(value, 3) for key, value in times.items()},
             "flipped_triangles": int(meshwise.flipped),
             "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),

@@ -6,9 +6,10 @@ Sun et al. 2022, Eq. 20 (cost ``c = r^2 sum |tri^t|``) and Eq. 21 (relative cost
 """
 import numpy as np
 
+from ._jit import njit
 from .charts import signed_uv_areas
 
-__all__ = ["uv_area", "texel_cost", "relative_cost", "resolution_for_cost"]
+__all__ = ["uv_area", "texel_reuse", "texel_cost", "relative_cost", "resolution_for_cost"]
 
 
 def uv_area(uv):
@@ -29,6 +30,72 @@ def uv_area(uv):
     if uv.ndim != 3 or uv.shape[1:] != (3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2), got {uv.shape}")
     return float(np.abs(signed_uv_areas(uv)).sum())
+
+
+@njit
+def _covered_texels_kernel(points, h, w):
+    """Numba: texels of an (h, w) image (REPEAT wrapping) whose centre lies in some triangle, inclusive of edges."""
+    covered = np.zeros(h * w, np.bool_)
+    for t in range(points.shape[0]):
+        ax, ay = points[t, 0, 0], points[t, 0, 1]
+        bx, by = points[t, 1, 0] - ax, points[t, 1, 1] - ay
+        cx, cy = points[t, 2, 0] - ax, points[t, 2, 1] - ay
+        det = bx * cy - by * cx
+        if det == 0.0:
+            continue
+        x_lo = int(np.floor(min(ax, ax + bx, ax + cx) - 0.5))
+        x_hi = int(np.ceil(max(ax, ax + bx, ax + cx) - 0.5))
+        y_lo = int(np.floor(min(ay, ay + by, ay + cy) - 0.5))
+        y_hi = int(np.ceil(max(ay, ay + by, ay + cy) - 0.5))
+        for iy in range(y_lo, y_hi + 1):
+            for ix in range(x_lo, x_hi + 1):
+                px = ix + 0.5 - ax
+                py = iy + 0.5 - ay
+                s = (px * cy - py * cx) / det
+                r = (bx * py - by * px) / det
+                if s >= 0.0 and r >= 0.0 and s + r <= 1.0:
+                    covered[(iy % h) * w + ix % w] = True
+    return covered
+
+
+def texel_reuse(uv, texture_shape):
+    """How many times, on average, the UV triangles use each texel they cover.
+
+    An atlas gives every surface point texels of its own, reuse 1; tiled UVs, several islands laid on the same
+    texels and mirrored halves share texels, so the summed UV area exceeds the image area they cover. A new UV
+    map that gives every triangle its own texels needs ``reuse`` times the input's covered texels for the
+    input's texel density, whatever the texture shows.
+
+    Parameters
+    ----------
+    uv : (m, 3, 2) array_like
+        Per-corner UV coordinates (REPEAT wrapping: any real values).
+    texture_shape : tuple of int
+        ``(h, w)`` of the texture the UVs read.
+
+    Returns
+    -------
+    float
+        ``sum_i |tri_i^t|`` in texels over the number of distinct texels whose centre lies in some triangle;
+        ``nan`` when no texel centre does.
+
+    Examples
+    --------
+    Two copies of the square [0, 1/2]^2 (two triangles each) on an 8 x 8 texture:
+
+    >>> square = [[[0, 0], [0.5, 0], [0.5, 0.5]], [[0, 0], [0.5, 0.5], [0, 0.5]]]
+    >>> float(texel_reuse(square * 2, (8, 8)))
+    2.0
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.ndim != 3 or uv.shape[1:] != (3, 2):
+        raise ValueError(f"uv must have shape (m, 3, 2), got {uv.shape}")
+    h, w = int(texture_shape[0]), int(texture_shape[1])
+    if h <= 0 or w <= 0:
+        raise ValueError(f"texture_shape must be positive, got {texture_shape}")
+    points = uv * np.array([w, h], dtype=np.float64)
+    covered = int(_covered_texels_kernel(np.ascontiguousarray(points), h, w).sum())
+    return uv_area(uv) * w * h / covered if covered else float("nan")
 
 
 def _pixel_count(resolution):

@@ -11,6 +11,7 @@ thread while its interface stays live (``bridge.pipeline`` does, while it import
 import numpy as np
 
 from .charts import uv_topology
+from .cost import texel_reuse
 from .footprint import footprint_texels
 from .loss import textured_triangles
 from .meshwise import solve_meshwise
@@ -24,7 +25,8 @@ def load_kernels():
     """Compile, or load from numba's cache, every kernel a run executes outside its worker processes.
 
     Runs the fit's texel test (:func:`.loss.textured_triangles`), one mesh-wise iteration, the fold restore,
-    the packing and the bake's footprint search on a square of two triangles with a third folded over them.
+    the packing, the bake's footprint search and the input's texel reuse on a square of two triangles with a third
+    folded over them.
     """
     uv = np.array([[[0.1, 0.1], [0.6, 0.1], [0.1, 0.6]],
                    [[0.6, 0.1], [0.6, 0.6], [0.1, 0.6]],
@@ -39,3 +41,4 @@ def load_kernels():
     restore_folded_charts(uv, uv, topology.face_chart)
     pack_charts(uv, topology.face_chart, margin=1, resolution=16)
     footprint_texels(uv, np.zeros((8, 8), dtype=bool))
+    texel_reuse(uv, (8, 8))

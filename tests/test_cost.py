@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from perceptual_uv.core.cost import relative_cost, resolution_for_cost, texel_cost, uv_area
+from perceptual_uv.core.cost import relative_cost, resolution_for_cost, texel_cost, texel_reuse, uv_area
 
 # Two triangles: the lower-left half of the unit square (area 1/2) and a small one of area 1/8.
 UV = np.array([[[0, 0], [1, 0], [0, 1]], [[0, 0], [0.5, 0], [0.5, 0.5]]], dtype=float)
@@ -45,3 +45,20 @@ def test_zero_area_is_refused():
         resolution_for_cost(flat, 0.3, reference_uv=UV, reference_resolution=64)
     with pytest.raises(ValueError, match="shape"):
         uv_area(np.zeros((3, 2)))
+
+
+SQUARE = [[[0.0, 0.0], [0.5, 0.0], [0.5, 0.5]], [[0.0, 0.0], [0.5, 0.5], [0.0, 0.5]]]  # [0, 1/2]^2, two triangles
+
+
+def test_texel_reuse_by_hand():
+    # 8 x 8 texture: the square covers 16 texel centres and has area 16 texels.
+    assert texel_reuse(SQUARE, (8, 8)) == 1.0
+    assert texel_reuse(SQUARE * 3, (8, 8)) == 3.0  # three islands laid on the same texels
+    unit = np.array(SQUARE) * 2.0
+    assert texel_reuse(unit * 2.0, (8, 16)) == 4.0  # the whole texture tiled 2 x 2 (non-square: 8 rows, 16 columns)
+
+
+def test_texel_reuse_wraps_like_the_texture():
+    # The square moved across the texture's corner (REPEAT): still 16 texels used once each.
+    assert texel_reuse(np.array(SQUARE) + 0.75, (8, 8)) == 1.0
+    assert np.isnan(texel_reuse(np.array(SQUARE) * 1e-3 + 0.01, (8, 8)))  # covers no texel centre

@@ -343,3 +343,31 @@ def test_the_sidebar_shows_the_measure_and_a_cost_per_kind_of_map(registered):
     assert props[props.index("target_cost") + 1] == "cost_measure"
     assert props[props.index("cost_measure") + 1:props.index("cost_measure") + 1 + len(costs)] == costs
     assert ("label", {"text": "Per-Map Costs"}) in drawn
+
+
+def test_an_input_that_lays_islands_on_the_same_texels_is_reported(registered, spot_obj, tmp_path):
+    """The patch's second half of triangles laid on the UVs of its first half: every covered texel is used about
+    twice, so the new UV map, which gives every triangle its own texels, needs about twice the memory for the
+    input's texel density; the report says so. The patch's own UVs share nothing (reuse about 1, no note)."""
+    from perceptual_uv.bridge.pipeline import run_to_end
+
+    obj = spot_patch(spot_obj, above=1.0)
+    report = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path / "a"))).report
+    assert abs(report["input_texel_reuse"] - 1.0) < 0.05
+    assert not [note for note in report["notes"] if "use each texel" in note]
+
+    obj = spot_patch(spot_obj, above=1.0)
+    mesh = obj.data
+    uv = np.empty(2 * len(mesh.loops))
+    mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv)
+    uv = uv.reshape(-1, 2)
+    polygons = list(mesh.polygons)
+    half = len(polygons) // 2
+    for first, second in zip(polygons[:half], polygons[half:2 * half]):
+        assert first.loop_total == second.loop_total == 3
+        uv[second.loop_start:second.loop_start + 3] = uv[first.loop_start:first.loop_start + 3]
+    mesh.uv_layers["UVMap"].uv.foreach_set("vector", uv.ravel())
+    report = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path / "b"))).report
+    assert 1.9 < report["input_texel_reuse"] < 2.1
+    notes = [note for note in report["notes"] if "use each texel" in note]
+    assert len(notes) == 1 and f"{report['input_texel_reuse']:.1f} times on average" in notes[0]
