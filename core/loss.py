@@ -19,7 +19,9 @@ For triangle ``i`` and a deformation ``(alpha, lambda1, lambda2, beta)`` (Eq. 13
    pixels are square for non-square textures too. Only UVs change: the surface point each pixel sees is
    cached, and only the bilinear weights are recomputed per evaluation.
 4. re-bake (Eq. 11) of the texels the deformed triangles read, by least squares (:mod:`.bake_lsq`), at the
-   same resolution, and render again (Eq. 2);
+   same resolution, and render again (Eq. 2). A texel is its position on the deformed points' lattice, without
+   REPEAT wrapping: a footprint wider than the texture gets texels of its own, as every chart does in the
+   packed atlas (:func:`.loss_stack._rebake_render_cells`);
 5. ``E = GMSD(reference, deformed)`` (Eq. 3, 5) over the covered part of the screen
    (:func:`.gmsd.covered_gmsd`): uncovered pooling cells continue the nearest covered one, so the edge of the
    drawn faces is no step in either render, and the deviation is taken over covered cells only.
