@@ -135,11 +135,11 @@ def measure_views(args):
             for problem in loss.prepare_triangles(V, F, uv, luma, faces[sizes == size], screen_pixels=int(size),
                                                   view_faces=view_faces):
                 if not problem.is_constant:
-                    box = problem.box
+                    extent = problem.box[1::2] - problem.box[::2]  # (u, v) texels
                     problems.append(problem)
-                    sides.append(max(box[1] - box[0], box[3] - box[2]))
+                    sides.append(extent.max())
                     views.append(size)
-                    wide.append(np.hypot(box[1] - box[0], box[3] - box[2]) >= min(problem.texture_shape) - 4)
+                    wide.append(np.hypot(*extent) >= min(problem.texture_shape) - 4)
         ratios = np.array(sides) / np.array(views)
         print(f"{view_faces}: {len(ratios)} textured faces; texel box over view side > 2: {np.mean(ratios > 2):.3f}, "
               f"> 4: {np.mean(ratios > 4):.3f}, median {np.median(ratios):.3f}; box diagonal >= texture side - 4: "

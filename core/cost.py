@@ -87,15 +87,13 @@ def texel_reuse(uv, texture_shape):
     >>> float(texel_reuse(square * 2, (8, 8)))
     2.0
     """
-    uv = np.asarray(uv, dtype=np.float64)
-    if uv.ndim != 3 or uv.shape[1:] != (3, 2):
-        raise ValueError(f"uv must have shape (m, 3, 2), got {uv.shape}")
+    area = uv_area(uv)  # checks the shape
     h, w = int(texture_shape[0]), int(texture_shape[1])
     if h <= 0 or w <= 0:
         raise ValueError(f"texture_shape must be positive, got {texture_shape}")
-    points = uv * np.array([w, h], dtype=np.float64)
+    points = np.asarray(uv, dtype=np.float64) * np.array([w, h], dtype=np.float64)
     covered = int(_covered_texels_kernel(np.ascontiguousarray(points), h, w).sum())
-    return uv_area(uv) * w * h / covered if covered else float("nan")
+    return area * w * h / covered if covered else float("nan")
 
 
 def _pixel_count(resolution):

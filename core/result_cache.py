@@ -20,6 +20,7 @@ from .atomic import atomic_path
 
 __all__ = ["ResultCache", "result_key", "default_cache_folder", "save_arrays", "dataclass_from"]
 
+
 def save_arrays(path, **arrays):
     """Write ``arrays`` to the .npz file ``path`` whole or not at all (:func:`.atomic.atomic_path`)."""
     with atomic_path(path) as temporary, open(temporary, "wb") as handle:
