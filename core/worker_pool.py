@@ -20,7 +20,7 @@ from .progress import InThread
 from .shared_arrays import SharedArrays
 from .spawn import _BOOTSTRAP, _looks_like_python, _package_parents, _python_executable, _spawn_environment
 
-__all__ = ["run_chunks", "WorkerDiedError", "WAIT_SECONDS"]
+__all__ = ["run_chunks", "one_blas_thread", "WorkerDiedError", "WAIT_SECONDS"]
 
 # Longest wait for worker results before a stage's generator hands control back (the modal operator's tick).
 WAIT_SECONDS = 0.1
@@ -29,14 +29,28 @@ DASK_CONNECT_SECONDS = 30
 _WORKER_STATE = {}
 
 
+def one_blas_thread():
+    """Limit BLAS and OpenMP to one thread in this process until the returned context exits (a null context
+    without threadpoolctl).
+
+    A task makes thousands of tiny BLAS calls (L-BFGS-B's updates in the Bayesian optimizer, the multifrontal
+    re-bake's small fronts); with a multi-threaded OpenBLAS each call hands work to, and waits for, threads that
+    share the cores with the other workers, and the optimizer's overhead grows more than tenfold on busy cores.
+    Worker processes keep the limit for their lifetime; tasks run in this process take it for their duration.
+    """
+    try:
+        import threadpoolctl
+
+        return threadpoolctl.threadpool_limits(1)
+    except Exception:  # a speed setting: no run may fail for it (no threadpoolctl, a BLAS it cannot drive)
+        return contextlib.nullcontext()
+
+
 def _worker_init(state):
     _WORKER_STATE.clear()
     _WORKER_STATE.update(state)
     # Worker processes split the cores among themselves: one thread each for BLAS and numba.
-    with contextlib.suppress(Exception):
-        import threadpoolctl
-
-        threadpoolctl.threadpool_limits(1)
+    one_blas_thread()
 
 
 class WorkerDiedError(RuntimeError):
@@ -132,7 +146,9 @@ def run_chunks(task, state, faces, *, workers, chunk_size, scheduler=None):
     if pool is None:
         shared.close()
         for chunk in chunks:
-            yield task(state, chunk)
+            with one_blas_thread():  # not held across the yield: the caller's own BLAS work keeps its threads
+                output = task(state, chunk)
+            yield output
         return
     import multiprocessing
 
