@@ -341,7 +341,10 @@ def _place_all(bitmaps, chart_order, width, *, limit):
     """Generator: bottom-left placement of every chart in a strip ``width`` wide, no higher than ``limit``;
     yields after each chart placed; returns positions, turns and the used height, or None if they do not fit."""
     count = len(bitmaps)
-    free_run = _empty_rows(max(64, 2 * width), width)
+    # A chart whose top would pass the limit does not fit: the strip holds the limit's rows only, and each turn's
+    # search stops at the rows where its top would pass the limit or the best turn's top so far.
+    free_run = _empty_rows(limit, width)
+    longest = np.full(limit, width, dtype=np.int32)
     positions = np.zeros((count, 2))
     chosen = np.zeros(count, dtype=np.int64)
     used = 0
@@ -349,12 +352,10 @@ def _place_all(bitmaps, chart_order, width, *, limit):
     for chart in chart_order:
         best = None
         for turn, ((rows, cols), spans, _) in enumerate(bitmaps[chart]):
-            if cols > width:
+            if cols > width or rows > limit:
                 continue
-            y, x = _first_fit(free_run, spans, rows, cols, lowest)
-            while y < 0 and free_run.shape[0] < limit + rows:  # the strip is full: double it
-                free_run = np.vstack([free_run, _empty_rows(free_run.shape[0], width)])
-                y, x = _first_fit(free_run, spans, rows, cols, lowest)
+            stop = limit - rows if best is None else min(limit - rows, best[0][0] - rows)
+            y, x = _first_fit(free_run, longest, spans, rows, cols, lowest, stop)
             if y < 0:
                 continue
             key = (y + rows, y, x)
@@ -363,20 +364,21 @@ def _place_all(bitmaps, chart_order, width, *, limit):
         if best is None:
             return None
         (top, _, _), turn, y, x, spans, rows = best
-        if top > limit:
-            return None
-        _occupy(free_run, spans, rows, y, x)
+        _occupy(free_run, longest, spans, rows, y, x)
         positions[chart] = (x, y)
         chosen[chart] = turn
         used = max(used, top)
-        while lowest < free_run.shape[0] and free_run[lowest].max() == 0:
+        while lowest < limit and longest[lowest] == 0:
             lowest += 1
         yield
     return positions, chosen, used
 
 
 def _empty_rows(height, width):
-    """Free runs of ``height`` empty rows: at column ``c``, ``width - c`` free pixels to the right."""
+    """Runs of ``height`` empty rows: at column ``c``, ``width - c`` free pixels to the right.
+
+    In a row, a free pixel holds the length of the free run from it to the right (> 0), an occupied one minus
+    the length of the occupied run from it (< 0) (:func:`_occupy`)."""
     return np.repeat(np.arange(width, 0, -1, dtype=np.int32)[None, :], height, axis=0)
 
 
@@ -391,13 +393,19 @@ def _row_spans(grid):
 
 
 @njit
-def _first_fit(free_run, spans, rows, cols, lowest):
-    """Lowest row, then leftmost column, where every span of the bitmap lands on free pixels; (-1, -1) if none."""
+def _first_fit(free_run, longest, spans, rows, cols, lowest, stop):
+    """Lowest row, no higher than ``stop``, then leftmost column, where every span of the bitmap lands on free
+    pixels; (-1, -1) if none.
+
+    ``free_run`` is signed (:func:`_empty_rows`): where a span does not fit, the search jumps past the free run
+    it met and the occupied run after it, or past the occupied run it started in, in one step; any failing span
+    gives a jump that skips no valid place, so the order the spans are tried in does not change the result.
+    ``longest`` holds each row's longest free run: rows a span cannot meet are skipped.
+    """
     height, width = free_run.shape
-    longest = np.zeros(height, dtype=np.int32)  # the longest free run of each row: rows it cannot meet are skipped
-    for y in range(lowest, height):
-        longest[y] = free_run[y].max()
-    for y in range(lowest, height - rows + 1):
+    count = spans.shape[0]
+    failed = 0  # the span that failed last is tried first at the next place: it usually fails again
+    for y in range(lowest, min(height - rows, stop) + 1):
         fits = True
         for s in range(spans.shape[0]):
             if longest[y + spans[s, 0]] < spans[s, 2] - spans[s, 1]:
@@ -408,12 +416,20 @@ def _first_fit(free_run, spans, rows, cols, lowest):
         x = 0
         while x <= width - cols:
             ok = True
-            for s in range(spans.shape[0]):
+            for k in range(count):
+                s = k + failed if k + failed < count else k + failed - count
                 row, start, end = spans[s, 0], spans[s, 1], spans[s, 2]
-                run = free_run[y + row, x + start]
+                line = free_run[y + row]
+                run = line[x + start]
                 if run < end - start:
                     ok = False
-                    x += run + 1  # the span must start past the occupied pixel that ends this run
+                    failed = s
+                    if run <= 0:
+                        x -= run  # start in the first free pixel after this occupied run
+                    elif x + start + run < width:
+                        x += run - line[x + start + run]  # past this free run and the occupied run that ends it
+                    else:
+                        x = width  # the free run reaches the row's end and is too short: no place further right
                     break
             if ok:
                 return y, x
@@ -421,8 +437,9 @@ def _first_fit(free_run, spans, rows, cols, lowest):
 
 
 @njit
-def _occupy(free_run, spans, rows, y, x):
-    """Mark the bitmap's spans at ``(x, y)`` occupied and recompute the free runs of the rows it touches."""
+def _occupy(free_run, longest, spans, rows, y, x):
+    """Mark the bitmap's spans at ``(x, y)`` occupied and recompute the runs and the longest free run of the rows
+    it touches."""
     width = free_run.shape[1]
     for s in range(spans.shape[0]):
         row, start, end = spans[s, 0], spans[s, 1], spans[s, 2]
@@ -430,10 +447,17 @@ def _occupy(free_run, spans, rows, y, x):
             free_run[y + row, c] = 0
     for row in range(rows):
         line = free_run[y + row]
-        run = 0
+        free = 0
+        busy = 0
+        most = 0
         for c in range(width - 1, -1, -1):
-            if line[c] == 0:
-                run = 0
+            if line[c] <= 0:
+                free = 0
+                busy += 1
+                line[c] = -busy
             else:
-                run += 1
-                line[c] = run
+                busy = 0
+                free += 1
+                line[c] = free
+                most = max(most, free)
+        longest[y + row] = most

@@ -169,3 +169,73 @@ def test_the_generator_hands_control_back_after_each_chart_and_each_try():
         expected = pack_charts(uv, face_chart, margin=2, **size)
         np.testing.assert_array_equal(packing.uv, expected.uv)
         assert packing.resolution == expected.resolution
+
+
+def test_a_placed_bitmap_leaves_signed_runs_and_the_search_jumps_over_it():
+    from perceptual_uv.core.packing import _empty_rows, _first_fit, _occupy, _row_spans
+
+    free_run = _empty_rows(3, 10)
+    longest = np.full(3, 10, dtype=np.int32)
+    block = _row_spans(np.ones((2, 2), dtype=bool))
+    _occupy(free_run, longest, block, 2, 0, 3)  # a 2 x 2 block at column 3 of rows 0 and 1
+    # free pixels: the free run to their right; occupied: minus the occupied run from them
+    assert free_run[0].tolist() == [3, 2, 1, -2, -1, 5, 4, 3, 2, 1]
+    assert free_run[1].tolist() == free_run[0].tolist()
+    assert free_run[2].tolist() == list(range(10, 0, -1))
+    assert longest.tolist() == [5, 5, 10]
+    bar4 = _row_spans(np.ones((1, 4), dtype=bool))
+    assert _first_fit(free_run, longest, bar4, 1, 4, 0, 2) == (0, 5)  # 3 free pixels, then past the block
+    bar6 = _row_spans(np.ones((1, 6), dtype=bool))
+    assert _first_fit(free_run, longest, bar6, 1, 6, 0, 2) == (2, 0)  # only the free row is long enough
+    assert _first_fit(free_run, longest, bar6, 1, 6, 0, 1) == (-1, -1)  # not above row 1
+
+
+def _brute_force_place_all(grids, order, width, limit):
+    """Every chart in ``order``: the lowest top, then lowest row, then leftmost column of any quarter turn's
+    bitmap (``grids[chart][turn]``) on free pixels of a ``limit`` x ``width`` strip, tried pixel by pixel."""
+    taken = np.zeros((limit, width), dtype=bool)
+    positions, turns = {}, {}
+    for chart in order:
+        best = None
+        for turn, grid in enumerate(grids[chart]):
+            rows, cols = grid.shape
+            for y in range(limit - rows + 1):
+                for x in range(width - cols + 1):
+                    if not (taken[y:y + rows, x:x + cols] & grid).any():
+                        key = (y + rows, y, x)
+                        if best is None or key < best[0]:
+                            best = (key, turn, y, x, grid)
+                        break  # the leftmost place of this row
+        if best is None:
+            return None
+        _, turn, y, x, grid = best
+        taken[y:y + grid.shape[0], x:x + grid.shape[1]] |= grid
+        positions[chart], turns[chart] = (x, y), turn
+    return positions, turns
+
+
+def test_placement_matches_a_pixel_by_pixel_first_fit():
+    from perceptual_uv.core.packing import _place_all, _row_spans
+    from perceptual_uv.core.progress import run_generator
+
+    rng = np.random.default_rng(3)
+    for trial in range(30):
+        grids = []
+        for _ in range(int(rng.integers(3, 9))):
+            grid = rng.random((int(rng.integers(1, 6)), int(rng.integers(1, 6)))) < 0.7
+            grid[0, :] |= ~grid.any(axis=0)  # no empty column or row: a bitmap spans its box
+            grid[:, 0] |= ~grid.any(axis=1)
+            grids.append([np.rot90(grid, k) for k in range(4)])
+        bitmaps = [[(g.shape, _row_spans(g), None) for g in turns] for turns in grids]
+        order = rng.permutation(len(grids))
+        width = limit = int(rng.integers(6, 12))
+        expected = _brute_force_place_all(grids, order, width, limit)
+        placed = run_generator(_place_all(bitmaps, order, width, limit=limit))
+        if expected is None:
+            assert placed is None, trial
+            continue
+        assert placed is not None, trial
+        positions, chosen, used = placed
+        for chart in order:
+            assert tuple(positions[chart].astype(int)) == expected[0][chart], trial
+            assert chosen[chart] == expected[1][chart], trial
