@@ -249,7 +249,7 @@ def main(argv=None):
         if not pathlib.Path(path).exists():
             print(f"skipping {path}: not found", file=sys.stderr)
             continue
-        models.append(model_file(path))
+        models.append(model_file(pathlib.Path(path).resolve()))  # each revision runs in its own folder
     trees = [("this", REPO)]
     if args.against:
         folder, commit = worktree(args.against)

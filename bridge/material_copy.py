@@ -17,7 +17,7 @@ from .material import material_maps, read_material, read_object_materials
 
 __all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "resolve_source_uv", "read_maps", "loss_planes_of",
            "iter_loss_planes_of", "image_side", "image_stem", "map_resolution", "memory_resolution",
-           "material_copies", "map_report"]
+           "material_copies", "map_report", "file_bytes"]
 
 MIN_RESOLUTION = 8  # the smallest side of a new image
 MAX_RESOLUTION = 16384  # the largest
@@ -211,7 +211,8 @@ def _raw_bytes(width, height, alpha, is_float):
     return int(width * height * (4 if alpha else 3) * (2 if is_float else 1))
 
 
-def _file_bytes(image):
+def file_bytes(image):
+    """Bytes of ``image``'s packed data or file on disk; None when it has neither."""
     if image.packed_file is not None:
         return int(image.packed_file.size)
     path = bpy.path.abspath(image.filepath_raw or image.filepath) if (image.filepath_raw or image.filepath) else ""
@@ -307,6 +308,6 @@ def map_report(result, path):
         "new_size": [int(image.size[0]), int(image.size[1])],
         "raw_bytes_before": _raw_bytes(width, height, result.alpha, source.is_float),
         "raw_bytes_after": _raw_bytes(image.size[0], image.size[1], result.alpha, image.is_float),
-        "file_bytes_before": _file_bytes(source),
-        "file_bytes_after": _file_bytes(image),
+        "file_bytes_before": file_bytes(source),
+        "file_bytes_after": file_bytes(image),
     }

@@ -19,8 +19,9 @@ import numpy as np
 
 from ..core import cost as texel_cost
 from ..core.progress import InThread, RunProgress, format_seconds
+from .image_file import iter_save_or_pack
 from .material import base_color_image_node
-from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, image_side, image_stem, iter_loss_planes_of,
+from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_side, image_stem, iter_loss_planes_of,
                             map_report, map_resolution, material_copies, memory_resolution, read_maps,
                             resolve_source_uv)
 
@@ -308,40 +309,6 @@ def _write_loss_attributes(obj, tri_polygons, losses, epsilon, created):
     colors.data.foreach_set("color", loss_ramp(polygon_loss, epsilon)[loop_polygon].ravel())
 
 
-def _save_or_pack(image, output_dir):
-    """Save next to the .blend (or into ``output_dir``); pack into the file when there is nowhere to save.
-
-    An existing file is never overwritten: the name gets a ``.001``-style suffix instead.
-
-    Returns
-    -------
-    path : str or None
-        The saved file, None when the image was packed.
-    warning : str or None
-        Why the image could not be saved (it is packed into the file instead, the result is kept).
-    """
-    folder = output_dir or (os.path.dirname(bpy.data.filepath) if bpy.data.filepath else None)
-    if folder is None:
-        image.pack()
-        return None, None
-    stem = os.path.join(bpy.path.abspath(folder), bpy.path.clean_name(image.name))
-    path, counter = f"{stem}.png", 1
-    while os.path.exists(path):  # never overwrite a file (e.g. an earlier run's image still used elsewhere)
-        path, counter = f"{stem}.{counter:03d}.png", counter + 1
-    image.filepath_raw = path
-    image.file_format = "PNG"
-    try:
-        image.save()
-    except RuntimeError as error:
-        image.filepath_raw = ""
-        image.pack()
-        reason = str(error).strip().splitlines()[-1] if str(error).strip() else "unknown error"
-        return None, (f"could not save the image to '{path}' ({reason}); it is packed into the .blend file "
-                      "instead: save it from the Image Editor (Image > Save As) to a writable folder")
-    image.filepath = bpy.path.relpath(path) if bpy.data.filepath else path
-    return path, None
-
-
 def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     """Optimize the UV map of ``objects`` (sharing one base-colour image) and bake every map onto it.
 
@@ -584,16 +551,20 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         warnings, maps_report = [], []
         saved = None
         for number, result in enumerate(bakes):
-            yield step("loss", number, len(bakes), f"Saving the {result.record.role.replace('_', ' ')} map "
-                       f"({number + 1}/{len(bakes)})")
-            path, warning = _save_or_pack(result.image, output_dir)
+            saving = step("loss", number, len(bakes), f"Saving the {result.record.role.replace('_', ' ')} map "
+                          f"({number + 1}/{len(bakes)})")
+            yield saving
+            # The report's sizes are read before the save: afterwards the image is the PNG's, read again on use.
+            entry = map_report(result, None)
+            path, warning = yield from _every_wait(iter_save_or_pack(result.image, output_dir), saving)
+            entry.update(new_image_file=path, file_bytes_after=file_bytes(result.image))
             if path:
                 created.files.append(path)
             if warning:
                 warnings.append(warning)
             if number == 0:
                 saved = path
-            maps_report.append(map_report(result, path))
+            maps_report.append(entry)
         before = sum(entry["raw_bytes_before"] for entry in maps_report)
         after = sum(entry["raw_bytes_after"] for entry in maps_report)
         files_before = [entry["file_bytes_before"] for entry in maps_report]
@@ -672,6 +643,16 @@ def _relay(stage, name, label, started, step, *, message=None):
         yield step(name, done, total, f"{label}: {done}/{total}{left}")
 
 
+
+
+def _every_wait(waiting, progress):
+    """Re-yield ``progress`` for every None a waiting generator yields; returns its value."""
+    while True:
+        try:
+            next(waiting)
+        except StopIteration as finished:
+            return finished.value
+        yield progress
 
 
 def _memory_side(record, settings):

@@ -2,9 +2,10 @@
 
 Each chart is drawn at a fixed texel density into a bitmap of the pixels it touches (conservative raster),
 grown by half the margin on every side; the bitmaps, largest first, are placed bottom-left in a square strip,
-each in the quarter turn whose top edge ends lowest, and the smallest square that holds them all is searched. Charts move by whole pixels, so the gap between two charts
-is at least the margin in pixels of the final image, and nothing rotates by other angles or shears (paper Sec.
-5.1, "Texture packing": the orientation the mesh-wise stage chose relative to the texel grid is kept).
+each in the quarter turn whose top edge ends lowest, and the smallest square that holds them all is searched.
+Charts move by whole pixels, so the gap between two charts is at least the margin in pixels of the final image,
+and nothing rotates by other angles or shears (paper Sec. 5.1, "Texture packing": the orientation the mesh-wise
+stage chose relative to the texel grid is kept).
 
 The texel density is what the cost fixes (Eq. 20-21): at ``d`` pixels per unit of the fitted UV map, a chart
 of fitted area ``a`` covers ``d^2 a`` texels whatever the image size, so the image side is simply the side of

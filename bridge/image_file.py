@@ -1,0 +1,119 @@
+"""New images written to disk as PNG files while Blender's interface stays responsive.
+
+``image.save()`` encodes a PNG in Blender's main thread: about a third of a second for a 1-2k map on a busy
+machine, during which the interface cannot redraw. An 8-bit image's pixels are its stored bytes / 255, so the
+bytes come back from one ``foreach_get`` without loss; Pillow encodes them in a thread (it releases the
+interpreter lock while it compresses), the generator hands control back meanwhile, and the image then becomes a
+file image on the written PNG (``source = 'FILE'``, read again lazily on its next use), as ``image.save()``
+leaves it. Float images (the high-precision maps) keep Blender's own save, one step.
+"""
+import os
+
+import bpy
+import numpy as np
+
+from ..core.progress import InThread
+
+__all__ = ["iter_save_or_pack"]
+
+
+def iter_save_or_pack(image, output_dir, *, interval=0.1):
+    """Generator: save ``image`` next to the .blend (or into ``output_dir``) as PNG, or pack it into the .blend
+    when there is nowhere to save; yields None every ``interval`` seconds while the PNG is encoded.
+
+    An existing file is never overwritten: the name gets a ``.001``-style suffix instead.
+
+    Parameters
+    ----------
+    image : bpy.types.Image
+        A new image (generated, its pixels set from numpy).
+    output_dir : str or None
+    interval : float, optional
+
+    Returns
+    -------
+    path : str or None
+        The saved file, None when the image was packed.
+    warning : str or None
+        Why the image could not be saved (it is packed into the file instead, the result is kept).
+    """
+    folder = output_dir or (os.path.dirname(bpy.data.filepath) if bpy.data.filepath else None)
+    if image.is_float or image.depth not in (24, 32):
+        return _save_in_blender(image, folder)
+    values = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(values)
+    width, height = image.size
+    channels = 4 if image.depth == 32 else 3
+    stored = np.rint(values.reshape(height, width, -1)[::-1, :, :channels] * 255.0).astype(np.uint8)
+    data = yield from InThread(_png_bytes, stored, interval=interval).wait()
+    if folder is None:
+        _pack_png(image, data)
+        return None, None
+    stem = os.path.join(bpy.path.abspath(folder), bpy.path.clean_name(image.name))
+    try:
+        path = yield from InThread(_write_new_file, stem, data, interval=interval).wait()
+    except OSError as error:
+        _pack_png(image, data)
+        return None, _unsaved_warning(f"{stem}.png", error.strerror or str(error))
+    image.filepath_raw = path
+    image.file_format = "PNG"
+    image.source = "FILE"  # the pixels are read again from the file when next used, as after image.save()
+    image.filepath = bpy.path.relpath(path) if bpy.data.filepath else path
+    return path, None
+
+
+def _png_bytes(stored):
+    """PNG file bytes of ``(h, w, 3 | 4)`` uint8 rows, top row first."""
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(stored), "RGBA" if stored.shape[2] == 4 else "RGB").save(buffer, "PNG")
+    return buffer.getvalue()
+
+
+def _write_new_file(stem, data):
+    """Write ``data`` to ``stem.png``, or ``stem.001.png`` and so on when a file has that name; returns the path."""
+    os.makedirs(os.path.dirname(stem) or ".", exist_ok=True)
+    path, counter = f"{stem}.png", 1
+    while True:
+        try:
+            with open(path, "xb") as file:  # exclusive: another program's file of that name is never replaced
+                file.write(data)
+            return path
+        except FileExistsError:
+            path, counter = f"{stem}.{counter:03d}.png", counter + 1
+
+
+def _pack_png(image, data):
+    image.pack(data=data, data_len=len(data))
+    image.file_format = "PNG"
+    image.source = "FILE"
+
+
+def _unsaved_warning(path, reason):
+    return (f"could not save the image to '{path}' ({reason}); it is packed into the .blend file instead: save it "
+            "from the Image Editor (Image > Save As) to a writable folder")
+
+
+def _save_in_blender(image, folder):
+    """Blender's own PNG save (one step), for images whose pixels are not 8-bit."""
+    if folder is None:
+        image.pack()
+        return None, None
+    stem = os.path.join(bpy.path.abspath(folder), bpy.path.clean_name(image.name))
+    path, counter = f"{stem}.png", 1
+    while os.path.exists(path):  # never overwrite a file (e.g. an earlier run's image still used elsewhere)
+        path, counter = f"{stem}.{counter:03d}.png", counter + 1
+    image.filepath_raw = path
+    image.file_format = "PNG"
+    try:
+        image.save()
+    except RuntimeError as error:
+        image.filepath_raw = ""
+        image.pack()
+        reason = str(error).strip().splitlines()[-1] if str(error).strip() else "unknown error"
+        return None, _unsaved_warning(path, reason)
+    image.filepath = bpy.path.relpath(path) if bpy.data.filepath else path
+    return path, None

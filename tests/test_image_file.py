@@ -1,0 +1,100 @@
+"""New images saved as PNG from a thread: the same pixels as Blender's own save, control handed back meanwhile."""
+import threading
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+Image = pytest.importorskip("PIL.Image")
+
+from perceptual_uv.bridge import image_file  # noqa: E402
+from perceptual_uv.core.progress import run_generator  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _empty(empty_scene):
+    yield
+
+
+def _new_image(name, *, alpha, colorspace="sRGB", float_buffer=False, seed=0):
+    values = np.random.default_rng(seed).random((40, 60, 4)).astype(np.float32)
+    if not alpha:
+        values[..., 3] = 1.0
+    image = bpy.data.images.new(name, 60, 40, alpha=alpha, float_buffer=float_buffer)
+    image.colorspace_settings.name = colorspace
+    image.pixels.foreach_set(values.ravel())
+    return image
+
+
+def _pixels(image):
+    values = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(values)
+    return values
+
+
+@pytest.mark.parametrize("alpha, colorspace", [(False, "sRGB"), (True, "Non-Color")])
+def test_the_png_holds_what_blenders_own_save_writes(tmp_path, alpha, colorspace):
+    reference = _new_image("reference", alpha=alpha, colorspace=colorspace)
+    reference.filepath_raw = str(tmp_path / "blender.png")
+    reference.file_format = "PNG"
+    reference.save()
+    image = _new_image("ours", alpha=alpha, colorspace=colorspace)
+    before = _pixels(image)
+    path, warning = run_generator(image_file.iter_save_or_pack(image, str(tmp_path / "maps")))
+    assert warning is None and path == str(tmp_path / "maps" / "ours.png")
+    ours, blenders = Image.open(path), Image.open(tmp_path / "blender.png")
+    assert ours.mode == blenders.mode == ("RGBA" if alpha else "RGB")
+    assert np.array_equal(np.asarray(ours), np.asarray(blenders))
+    # the image is the file's now, as image.save() leaves it, and reads back the same pixels
+    assert image.source == "FILE" and not image.is_dirty and image.colorspace_settings.name == colorspace
+    assert np.array_equal(_pixels(image), before)
+
+
+def test_the_generator_hands_control_back_while_the_png_is_encoded(tmp_path, monkeypatch):
+    release = threading.Event()
+    encode = image_file._png_bytes
+
+    def held_encode(stored):
+        assert release.wait(10)
+        return encode(stored)
+
+    monkeypatch.setattr(image_file, "_png_bytes", held_encode)
+    saving = image_file.iter_save_or_pack(_new_image("held", alpha=False), str(tmp_path), interval=0.001)
+    assert next(saving) is None  # the encoder is still waiting: the caller has control
+    release.set()
+    path, warning = run_generator(saving)
+    assert warning is None and path == str(tmp_path / "held.png")
+
+
+def test_an_existing_file_is_kept_and_the_new_one_numbered(tmp_path):
+    (tmp_path / "map.png").write_bytes(b"someone else's file")
+    (tmp_path / "map.001.png").write_bytes(b"another one")
+    path, _ = run_generator(image_file.iter_save_or_pack(_new_image("map", alpha=False), str(tmp_path)))
+    assert path == str(tmp_path / "map.002.png")
+    assert (tmp_path / "map.png").read_bytes() == b"someone else's file"
+
+
+def test_without_a_folder_the_png_is_packed(monkeypatch):
+    image = _new_image("packed", alpha=True)
+    before = _pixels(image)
+    path, warning = run_generator(image_file.iter_save_or_pack(image, None))
+    assert path is None and warning is None
+    assert image.packed_file is not None and image.packed_file.data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert np.array_equal(_pixels(image), before)
+
+
+def test_an_unwritable_folder_packs_the_image_and_says_why(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    image = _new_image("blocked", alpha=False)
+    path, warning = run_generator(image_file.iter_save_or_pack(image, str(blocker / "maps")))
+    assert path is None and image.packed_file is not None
+    assert "could not save the image" in warning and "packed into the .blend" in warning
+    assert "\n" not in warning
+
+
+def test_a_float_image_keeps_blenders_save(tmp_path):
+    image = _new_image("float_map", alpha=False, colorspace="Non-Color", float_buffer=True)
+    path, warning = run_generator(image_file.iter_save_or_pack(image, str(tmp_path)))
+    assert warning is None and path == str(tmp_path / "float_map.png")
+    assert image.source == "FILE" and not image.is_dirty
