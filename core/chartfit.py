@@ -120,7 +120,8 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                     fold_tolerance=FOLD_TOLERANCE):
     """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`.
 
-    Per fit it yields after every solver iteration, once more before and once after the fold restore and the
+    It yields once the charts are found; per fit after the solver's set-up and every iteration, once more before
+    and once after the fold restore and the
     chart turns (:func:`finish_charts`, whole-mesh work that would otherwise share a step with the solver's last
     iteration and the measurement's start), while ``measure`` runs if it is a generator, and when the fit's
     losses are in; choosing the charts' fits is the step after the last yield. A modal operator that calls
@@ -135,6 +136,7 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     topology = uv_topology(F, uv)
     chart = topology.face_chart
     steps = max_iterations + 1
+    yield 0, 2 * steps  # the charts' topology is a step of its own
     candidates = []
     for index, rotation_weights in enumerate((np.zeros_like(np.asarray(w_R, dtype=np.float64)), w_R)):
         stage = iter_solve_meshwise(F, uv, targets, rotation_weights, w_S, topology=topology,

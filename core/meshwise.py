@@ -732,7 +732,8 @@ def _carry_loose_vertices(x, problem, topology, J):
 def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", formulation="perceptual",
                         w_rs=1e-5, barrier_weight=1.0, barrier_threshold=0.5, max_iterations=100, tol=1e-7,
                         newton_iterations=1, degenerate_tol=1e-10, topology=None, texel_scale=(1.0, 1.0)):
-    """Generator form of :func:`solve_meshwise`: yields ``(done, total)`` after every iteration.
+    """Generator form of :func:`solve_meshwise`: yields ``(done, total)`` after the set-up (``done = 0``) and
+    after every iteration.
 
     The result comes back as the generator's return value, so a pipeline generator writes
     ``result = yield from iter_solve_meshwise(...)``; parameters are those of :func:`solve_meshwise`.
@@ -795,6 +796,7 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
     shift = None
     converged = False
     iteration = 0
+    yield 0, int(max_iterations)  # the set-up (the Hessian's pattern) is a step of its own
     for iteration in range(1, int(max_iterations) + 1):
         # Local step.
         if common:
@@ -904,7 +906,7 @@ def solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptual", 
         their quarter turns and Eq. 19 are measured (only ``w / h`` matters). The default ``(1, 1)`` is UV
         units, right for a square texture and for targets stated in UV units (e.g. :func:`.ssp.ssp_targets`).
     progress : callable, optional
-        Called as ``progress(done, total)`` after every iteration.
+        Called as ``progress(done, total)`` after the set-up (``done = 0``) and after every iteration.
 
     Returns
     -------

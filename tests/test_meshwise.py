@@ -250,7 +250,7 @@ def test_generator_yields_progress_and_returns_the_result():
     generator = iter_solve_meshwise(SQUARE_F, SQUARE_UV, params, weights="identity", max_iterations=5)
     steps = []
     result = run_generator(generator, lambda *step: steps.append(step))
-    assert steps == [(i, 5) for i in range(1, result.iterations + 1)]
+    assert steps == [(i, 5) for i in range(0, result.iterations + 1)]  # the set-up, then each iteration
     calls = []
     solve_meshwise(SQUARE_F, SQUARE_UV, params, weights="identity", max_iterations=5,
                    progress=lambda done, total: calls.append((done, total)))
