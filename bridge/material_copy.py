@@ -119,17 +119,18 @@ def loss_planes_of(records, texture):
 def iter_loss_planes_of(records, texture):
     """Generator form of :func:`loss_planes_of`: yields ``(done, total)`` maps and returns the planes.
 
-    It yields ``(0, len(records))`` after reading each further map's pixels out of Blender (one bpy call per
-    map, which cannot be split), then the steps of :func:`.core.loss_planes.iter_loss_planes`, a band of rows of
-    a map at a time.
+    It yields ``(0, len(records))`` while and after reading each further map's pixels
+    (:func:`.image_file.iter_read_image`), then the steps of :func:`.core.loss_planes.iter_loss_planes`, a band
+    of rows of a map at a time.
     """
     from ..core.loss_planes import PlaneStack, iter_loss_planes
-    from .mesh_io import read_image
+    from ..core.progress import report_while_waiting
+    from .image_file import iter_read_image
 
     maps = []
     for index, record in enumerate(records):
         if index:
-            pixels = read_image(record.image)
+            pixels = yield from report_while_waiting(iter_read_image(record.image), (0, len(records)))
             yield 0, len(records)
         else:
             pixels = texture

@@ -140,11 +140,7 @@ def read_mesh(obj, *, uv_name=None):
 
 
 def read_image(image):
-    """Pixels of an image as stored, bottom row first.
-
-    Parameters
-    ----------
-    image : bpy.types.Image
+    """Pixels of an image as stored, bottom row first: :func:`.image_file.iter_read_image` run to its end.
 
     Returns
     -------
@@ -158,15 +154,10 @@ def read_image(image):
     ValueError
         If the image has no pixels (e.g. its file is missing).
     """
-    if image is None:
-        raise ValueError("no image")
-    width, height = image.size
-    channels = image.channels
-    if width == 0 or height == 0 or len(image.pixels) == 0:
-        raise ValueError(f"image '{image.name}' has no pixels (file missing: '{image.filepath}'?)")
-    pixels = np.empty(width * height * channels, dtype=np.float32)
-    image.pixels.foreach_get(pixels)
-    return pixels.reshape(height, width, channels)
+    from ..core.progress import run_generator
+    from .image_file import iter_read_image
+
+    return run_generator(iter_read_image(image))
 
 
 def image_triangle_mask(obj, mesh_arrays, image):

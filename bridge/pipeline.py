@@ -18,8 +18,8 @@ import bpy
 import numpy as np
 
 from ..core import cost as texel_cost
-from ..core.progress import InThread, RunProgress, format_seconds
-from .image_file import iter_save_or_pack
+from ..core.progress import InThread, RunProgress, format_seconds, report_while_waiting
+from .image_file import iter_read_image, iter_save_or_pack
 from .material import base_color_image_node
 from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_side, image_stem, iter_loss_planes_of,
                             map_report, map_resolution, material_copies, memory_resolution, read_maps,
@@ -243,12 +243,12 @@ def _iter_read_objects(objects, source_uv, settings, step):
     """Read, then validate, one part per step: yields ``step("read", ...)`` before each part and returns the
     image block, the validated input (mesh, texture for the loss, what to skip) and notes.
 
-    Loading the image's file (on its first use) and copying its pixels out of Blender are single bpy calls:
-    each takes one step however large the image is.
+    Loading the image's file (on its first use) is a single bpy call, one step however large the image is; its
+    pixels are decoded in a thread where they can be (:func:`.image_file.iter_read_image`).
     """
     from ..core.mesh import concatenate_meshes
     from ..core.validate import check_memory_budget, validate_inputs
-    from .mesh_io import image_triangle_mask, read_image, read_mesh
+    from .mesh_io import image_triangle_mask, read_mesh
 
     per_object = [read_mesh(obj, uv_name=source_uv) for obj in objects]
     mesh = concatenate_meshes(per_object)
@@ -260,8 +260,9 @@ def _iter_read_objects(objects, source_uv, settings, step):
     check_memory_budget(mesh.n_vertices, mesh.n_faces, (height, width, image.channels), workers=settings.workers,
                         screen_pixels=settings.max_screen_pixels, what=what)
     uses_image = np.concatenate([image_triangle_mask(obj, arrays, image) for obj, arrays in zip(objects, per_object)])
-    yield step("read", 2, _READ_STEPS, "Reading the texture's pixels")
-    pixels = read_image(image)
+    reading = step("read", 2, _READ_STEPS, "Reading the texture's pixels")
+    yield reading
+    pixels = yield from report_while_waiting(iter_read_image(image), reading)
     yield step("read", 3, _READ_STEPS, "Checking the mesh and texture")
     validated = validate_inputs(mesh, pixels, shows_texture=uses_image, workers=settings.workers,
                                 screen_pixels=settings.max_screen_pixels, uv_name=source_uv, image_name=image.name)
@@ -556,7 +557,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             yield saving
             # The report's sizes are read before the save: afterwards the image is the PNG's, read again on use.
             entry = map_report(result, None)
-            path, warning = yield from _every_wait(iter_save_or_pack(result.image, output_dir), saving)
+            path, warning = yield from report_while_waiting(iter_save_or_pack(result.image, output_dir), saving)
             entry.update(new_image_file=path, file_bytes_after=file_bytes(result.image))
             if path:
                 created.files.append(path)
@@ -643,16 +644,6 @@ def _relay(stage, name, label, started, step, *, message=None):
         yield step(name, done, total, f"{label}: {done}/{total}{left}")
 
 
-
-
-def _every_wait(waiting, progress):
-    """Re-yield ``progress`` for every None a waiting generator yields; returns its value."""
-    while True:
-        try:
-            next(waiting)
-        except StopIteration as finished:
-            return finished.value
-        yield progress
 
 
 def _memory_side(record, settings):

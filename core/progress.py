@@ -2,7 +2,7 @@
 import threading
 import time
 
-__all__ = ["run_generator", "InThread", "RunProgress", "format_seconds"]
+__all__ = ["run_generator", "report_while_waiting", "InThread", "RunProgress", "format_seconds"]
 
 
 def run_generator(generator, progress=None):
@@ -22,6 +22,20 @@ def run_generator(generator, progress=None):
             return finished.value
         if progress is not None:
             progress(*item)
+
+
+def report_while_waiting(waiting, progress):
+    """Generator: drive ``waiting`` (a generator that yields None while it waits, e.g. :meth:`InThread.wait`),
+    yielding ``progress`` in place of each None; returns ``waiting``'s value.
+
+    A stage that yields progress values (``(done, total)``, a pipeline step) keeps yielding the same one while a
+    thread works for it."""
+    while True:
+        try:
+            next(waiting)
+        except StopIteration as finished:
+            return finished.value
+        yield progress
 
 
 class InThread:

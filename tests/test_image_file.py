@@ -98,3 +98,48 @@ def test_a_float_image_keeps_blenders_save(tmp_path):
     path, warning = run_generator(image_file.iter_save_or_pack(image, str(tmp_path)))
     assert warning is None and path == str(tmp_path / "float_map.png")
     assert image.source == "FILE" and not image.is_dirty
+
+
+@pytest.mark.parametrize("mode, suffix", [("RGB", "png"), ("RGBA", "png"), ("RGB", "jpg"), ("L", "png"), ("P", "png")])
+def test_a_file_image_reads_as_blender_holds_it(tmp_path, mode, suffix):
+    stored = (np.random.default_rng(1).random((37, 53, 4)) * 255).astype(np.uint8)
+    path = tmp_path / f"texture.{suffix}"
+    Image.fromarray(stored, "RGBA").convert(mode).save(path)
+    image = bpy.data.images.load(str(path))
+    pixels = run_generator(image_file.iter_read_image(image))
+    assert pixels.dtype == np.float32 and pixels.shape == (37, 53, 4)
+    assert np.array_equal(pixels.ravel(), _pixels(image))  # foreach_get: what Blender holds
+    # RGB and RGBA files are decoded in the thread, other modes fall back to foreach_get
+    decoded = image_file._decode_rgba(image_file._decodable_source(image), (37, 53))
+    assert (decoded is not None) == (mode in ("RGB", "RGBA"))
+
+
+def test_the_decode_runs_while_the_generator_hands_control_back(tmp_path, monkeypatch):
+    stored = (np.random.default_rng(2).random((20, 30, 3)) * 255).astype(np.uint8)
+    Image.fromarray(stored, "RGB").save(tmp_path / "texture.png")
+    image = bpy.data.images.load(str(tmp_path / "texture.png"))
+    release = threading.Event()
+    decode = image_file._decode_rgba
+
+    def held_decode(source, shape):
+        assert release.wait(10)
+        return decode(source, shape)
+
+    monkeypatch.setattr(image_file, "_decode_rgba", held_decode)
+    reading = image_file.iter_read_image(image, interval=0.001)
+    assert next(reading) is None
+    release.set()
+    pixels = run_generator(reading)
+    # bottom row first, bytes / 255, alpha 1 for an RGB file: by hand from the bytes written
+    assert np.array_equal(pixels[0, :, :3], stored[-1] * np.float32(1 / 255))
+    assert np.all(pixels[..., 3] == 1.0)
+
+
+def test_an_edited_image_is_read_from_blender_not_from_its_file(tmp_path):
+    stored = (np.random.default_rng(3).random((8, 8, 3)) * 255).astype(np.uint8)
+    Image.fromarray(stored, "RGB").save(tmp_path / "texture.png")
+    image = bpy.data.images.load(str(tmp_path / "texture.png"))
+    edited = np.full(8 * 8 * 4, 0.5, dtype=np.float32)
+    image.pixels.foreach_set(edited)
+    assert image.is_dirty and image_file._decodable_source(image) is None
+    assert np.array_equal(run_generator(image_file.iter_read_image(image)).ravel(), _pixels(image))

@@ -105,3 +105,16 @@ def test_cli_heartbeat_lines_name_no_long_step_while_the_pipeline_yields(capsys)
     err = capsys.readouterr().err.splitlines()
     assert len(err) >= 3  # the first line, then one at least every second
     assert not any("running for" in line for line in err)
+
+
+def test_report_while_waiting_yields_the_progress_for_each_wait_and_returns_the_value():
+    from perceptual_uv.core.progress import report_while_waiting, run_generator
+
+    def waiting():
+        yield None
+        yield None
+        return 7
+
+    steps = []
+    assert run_generator(report_while_waiting(waiting(), ("read", 2)), lambda *step: steps.append(step)) == 7
+    assert steps == [("read", 2), ("read", 2)]  # run_generator unpacks each yielded item
