@@ -114,9 +114,9 @@ def iter_save_or_pack(image, output_dir, *, interval=0.1):
     values = np.empty(len(image.pixels), dtype=np.float32)
     image.pixels.foreach_get(values)
     width, height = image.size
-    channels = 4 if image.depth == 32 else 3
-    stored = np.rint(values.reshape(height, width, -1)[::-1, :, :channels] * 255.0).astype(np.uint8)
-    data = yield from InThread(_png_bytes, stored, interval=interval).wait()
+    shape = (height, width, len(values) // (width * height))
+    data = yield from InThread(_png_bytes, values.reshape(shape), 4 if image.depth == 32 else 3,
+                               interval=interval).wait()
     if folder is None:
         _pack_png(image, data)
         return None, None
@@ -133,14 +133,17 @@ def iter_save_or_pack(image, output_dir, *, interval=0.1):
     return path, None
 
 
-def _png_bytes(stored):
-    """PNG file bytes of ``(h, w, 3 | 4)`` uint8 rows, top row first."""
+def _png_bytes(values, channels):
+    """PNG file bytes of an 8-bit image's ``(h, w, c)`` pixels as ``foreach_get`` gives them (bytes / 255, bottom
+    row first), its first ``channels`` (3 or 4) written. Runs in a thread: numpy and Pillow release the
+    interpreter lock for the conversion and the compression."""
     import io
 
     from PIL import Image
 
+    stored = np.rint(values[::-1, :, :channels] * np.float32(255.0)).astype(np.uint8)
     buffer = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(stored), "RGBA" if stored.shape[2] == 4 else "RGB").save(buffer, "PNG")
+    Image.fromarray(stored, "RGBA" if channels == 4 else "RGB").save(buffer, "PNG")
     return buffer.getvalue()
 
 

@@ -54,9 +54,9 @@ def test_the_generator_hands_control_back_while_the_png_is_encoded(tmp_path, mon
     release = threading.Event()
     encode = image_file._png_bytes
 
-    def held_encode(stored):
+    def held_encode(values, channels):
         assert release.wait(10)
-        return encode(stored)
+        return encode(values, channels)
 
     monkeypatch.setattr(image_file, "_png_bytes", held_encode)
     saving = image_file.iter_save_or_pack(_new_image("held", alpha=False), str(tmp_path), interval=0.001)
