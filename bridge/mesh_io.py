@@ -140,20 +140,8 @@ def read_mesh(obj, *, uv_name=None):
 
 
 def read_image(image):
-    """Pixels of an image as stored, bottom row first: :func:`.image_file.iter_read_image` run to its end.
-
-    Returns
-    -------
-    (h, w, c) float32 ndarray
-        ``c = image.channels``; row 0 is the bottom of the image (v = 0). 8-bit images give their stored
-        byte values / 255 with no colour-space conversion; float images (EXR, 16-bit PNG) give the values
-        Blender holds, which it has already converted to linear for non-linear colour spaces.
-
-    Raises
-    ------
-    ValueError
-        If the image has no pixels (e.g. its file is missing).
-    """
+    """Pixels of an image as stored, bottom row first, ``(h, w, image.channels)`` float32:
+    :func:`.image_file.iter_read_image` (see there for the values and errors) run to its end."""
     from ..core.progress import run_generator
     from .image_file import iter_read_image
 

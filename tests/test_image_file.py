@@ -50,15 +50,21 @@ def test_the_png_holds_what_blenders_own_save_writes(tmp_path, alpha, colorspace
     assert np.array_equal(_pixels(image), before)
 
 
-def test_the_generator_hands_control_back_while_the_png_is_encoded(tmp_path, monkeypatch):
+def _held(monkeypatch, name):
+    """Replace ``image_file.<name>`` by a version that waits for the returned event before it runs."""
     release = threading.Event()
-    encode = image_file._png_bytes
+    function = getattr(image_file, name)
 
-    def held_encode(values, channels):
+    def held(*args):
         assert release.wait(10)
-        return encode(values, channels)
+        return function(*args)
 
-    monkeypatch.setattr(image_file, "_png_bytes", held_encode)
+    monkeypatch.setattr(image_file, name, held)
+    return release
+
+
+def test_the_generator_hands_control_back_while_the_png_is_encoded(tmp_path, monkeypatch):
+    release = _held(monkeypatch, "_png_bytes")
     saving = image_file.iter_save_or_pack(_new_image("held", alpha=False), str(tmp_path), interval=0.001)
     assert next(saving) is None  # the encoder is still waiting: the caller has control
     release.set()
@@ -118,14 +124,7 @@ def test_the_decode_runs_while_the_generator_hands_control_back(tmp_path, monkey
     stored = (np.random.default_rng(2).random((20, 30, 3)) * 255).astype(np.uint8)
     Image.fromarray(stored, "RGB").save(tmp_path / "texture.png")
     image = bpy.data.images.load(str(tmp_path / "texture.png"))
-    release = threading.Event()
-    decode = image_file._decode_rgba
-
-    def held_decode(source, shape):
-        assert release.wait(10)
-        return decode(source, shape)
-
-    monkeypatch.setattr(image_file, "_decode_rgba", held_decode)
+    release = _held(monkeypatch, "_decode_rgba")
     reading = image_file.iter_read_image(image, interval=0.001)
     assert next(reading) is None
     release.set()
