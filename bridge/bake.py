@@ -28,6 +28,7 @@ import scipy.ndimage
 from ..core.footprint import footprint_texels
 from ..core.progress import run_generator
 from ..core.raster import sample_bilinear
+from .image_file import image_is_float
 from .map_reads import _map_sources, _reading_records, _slot_sources, bake_kind, has_transform, transform_problem
 from .mesh_io import read_image, read_mesh
 
@@ -571,7 +572,8 @@ def iter_bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, 
             else:
                 pixels, use_alpha = baked[number]
                 baked[number] = None  # the image holds the pixels from here on
-            image = _new_image(name, pixels, alpha=use_alpha, use_float=record.image.is_float, like=record.image)
+            image = _new_image(name, pixels, alpha=use_alpha, use_float=image_is_float(record.image),
+                               like=record.image)
             results.append(BakeResult(image=image, record=record, kind=bake_kind(record), alpha=use_alpha))
     except BaseException:
         for result in results:

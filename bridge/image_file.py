@@ -1,10 +1,12 @@
 """Images read from and written to PNG and JPEG files while Blender's interface stays responsive.
 
-Reading: copying an image's pixels out of Blender is one ``foreach_get`` in the main thread (1.1 s the first
-time for a 4096 px PNG on a busy machine, 0.13 s the next times). An unmodified 8-bit RGB or RGBA PNG or JPEG is
-decoded by Pillow in a thread instead, with the same values (stored byte * (1 / 255) in float32, bottom row first,
-alpha 1 for RGB files); anything else (float or 16-bit images, other modes, edited or generated images, alpha
-modes other than straight or channel-packed) keeps ``foreach_get``.
+Reading: Blender loads an image in the main thread on the first access to its size or pixels (0.5 s for a 4096
+px PNG on a busy machine), and copying its pixels out is one ``foreach_get`` (1.1 s the first time). An
+unmodified 8-bit RGB or RGBA PNG or RGB JPEG is decoded by Pillow in a thread instead, with the same values (the
+stored bytes * (1 / 255) in float32, bottom row first, alpha 1 for RGB files), and its size comes from its header
+(:func:`image_size`), so Blender does not load it at all; anything else (16-bit and float images, grey or palette
+images, edited or generated images, alpha modes other than straight or channel-packed) keeps Blender's load and
+``foreach_get``.
 
 Saving: ``image.save()`` encodes a PNG in Blender's main thread: about a third of a second for a 1-2k map on a busy
 machine, during which the interface cannot redraw. An 8-bit image's pixels are its stored bytes / 255, so the
@@ -20,9 +22,9 @@ import numpy as np
 
 from ..core.progress import InThread
 
-__all__ = ["iter_read_image", "iter_save_or_pack"]
+__all__ = ["iter_read_image", "image_size", "image_channels", "image_is_float", "iter_save_or_pack"]
 
-_DECODED_FORMATS = ("PNG", "JPEG")
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _STORED_ALPHA = ("STRAIGHT", "CHANNEL_PACKED")  # alpha modes whose 8-bit pixels are the stored bytes
 
 
@@ -49,24 +51,45 @@ def iter_read_image(image, *, interval=0.1):
     """
     if image is None:
         raise ValueError("no image")
+    source = _file_source(image)
+    if source is not None and _decodable_size(source) is not None:
+        return (yield from InThread(_decode_rgba, source, interval=interval).wait())
     width, height = image.size
     channels = image.channels
     if width == 0 or height == 0 or len(image.pixels) == 0:
         raise ValueError(f"image '{image.name}' has no pixels (file missing: '{image.filepath}'?)")
-    source = _decodable_source(image)
-    if source is not None:
-        pixels = yield from InThread(_decode_rgba, source, (height, width), interval=interval).wait()
-        if pixels is not None:
-            return pixels
     pixels = np.empty(width * height * channels, dtype=np.float32)
     image.pixels.foreach_get(pixels)
     return pixels.reshape(height, width, channels)
 
 
-def _decodable_source(image):
-    """The packed bytes or the file path of an image Pillow decodes to Blender's own values; None otherwise."""
-    if (image.source != "FILE" or image.is_dirty or image.is_float or image.channels != 4
-            or image.file_format not in _DECODED_FORMATS or image.alpha_mode not in _STORED_ALPHA):
+def image_size(image):
+    """``(width, height)`` of ``image``: from its file's header when :func:`iter_read_image` decodes that file
+    (Blender does not load the image for it), else ``image.size`` (which loads it; ``(0, 0)`` when the file is
+    missing)."""
+    source = _file_source(image)
+    size = None if source is None else _decodable_size(source)
+    return size if size is not None else tuple(image.size)
+
+
+def image_channels(image):
+    """The channels :func:`iter_read_image` gives: 4 for a file it decodes (as Blender holds RGB and RGBA files),
+    else ``image.channels``."""
+    source = _file_source(image)
+    return 4 if source is not None and _decodable_size(source) is not None else image.channels
+
+
+def image_is_float(image):
+    """Whether Blender holds ``image`` as floats, without loading a file :func:`iter_read_image` decodes (8-bit)."""
+    source = _file_source(image)
+    return False if source is not None and _decodable_size(source) is not None else image.is_float
+
+
+def _file_source(image):
+    """The packed bytes or the file path of an unmodified file image whose 8-bit pixels Blender holds as stored;
+    None otherwise. Reads no attribute that makes Blender load the image (``size``, ``file_format``,
+    ``is_float``, ``channels`` would)."""
+    if image is None or image.source != "FILE" or image.is_dirty or image.alpha_mode not in _STORED_ALPHA:
         return None
     if image.packed_file is not None:
         return image.packed_file.data
@@ -74,16 +97,40 @@ def _decodable_source(image):
     return path if path and os.path.isfile(path) else None
 
 
-def _decode_rgba(source, shape):
-    """``(h, w, 4)`` float32 pixels of an RGB or RGBA file (bytes or a path), bottom row first; None when the
-    file is of another mode or size than Blender holds."""
+def _decodable_size(source):
+    """``(width, height)`` of an 8-bit RGB or RGBA PNG or an RGB JPEG (bytes or a path), from its header; None
+    for any other file (16-bit PNGs, which Blender holds as floats, grey or palette images, CMYK JPEGs)."""
+    import io
+
+    from PIL import Image, UnidentifiedImageError
+
+    head = source[:26] if isinstance(source, bytes) else _file_head(source, 26)
+    if head.startswith(_PNG_SIGNATURE):
+        if len(head) < 26 or head[12:16] != b"IHDR" or head[24] != 8 or head[25] not in (2, 6):
+            return None  # IHDR: width, height, bit depth, colour type (2 RGB, 6 RGBA)
+        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if not head.startswith(b"\xff\xd8\xff"):
+        return None
+    try:
+        with Image.open(io.BytesIO(source) if isinstance(source, bytes) else source) as header:  # the header only
+            return header.size if header.format == "JPEG" and header.mode == "RGB" else None
+    except (OSError, UnidentifiedImageError):
+        return None
+
+
+def _file_head(path, count):
+    with open(path, "rb") as file:
+        return file.read(count)
+
+
+def _decode_rgba(source):
+    """``(h, w, 4)`` float32 pixels of a file :func:`_decodable_size` accepts (bytes or a path), bottom row first,
+    the stored bytes * (1 / 255), alpha 1 for RGB."""
     import io
 
     from PIL import Image
 
     with Image.open(io.BytesIO(source) if isinstance(source, bytes) else source) as decoded:
-        if decoded.mode not in ("RGB", "RGBA") or decoded.size != (shape[1], shape[0]):
-            return None
         stored = np.asarray(decoded.convert("RGBA"))
     return stored[::-1] * np.float32(1.0 / 255.0)
 

@@ -13,6 +13,7 @@ import os
 import bpy
 import numpy as np
 
+from .image_file import image_is_float, image_size
 from .material import material_maps, read_material, read_object_materials
 
 __all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "resolve_source_uv", "read_maps", "loss_planes_of",
@@ -85,7 +86,7 @@ def read_maps(objects, source_uv, loss_image):
                     kind = {"TILED": "a UDIM tiled image", "MOVIE": "a movie", "SEQUENCE": "an image sequence"}
                     raise ValueError(f"{where} is {kind[image.source]}; only single still images can be re-baked "
                                      "(bake it into one image first)")
-                if image.size[0] == 0 or image.size[1] == 0:
+                if 0 in image_size(image):
                     path = bpy.path.abspath(image.filepath) if image.filepath else "(no file path)"
                     raise ValueError(f"{where} has no pixels: its file {path} is missing or unreadable; fix the path "
                                      "(Image > Replace) or pack the image")
@@ -151,7 +152,8 @@ def iter_loss_planes_of(records, texture):
 
 def image_side(image):
     """An image's side for sizing: ``sqrt(width * height)``, so a non-square map keeps its pixel count's share."""
-    return float(np.sqrt(image.size[0] * image.size[1]))
+    width, height = image_size(image)
+    return float(np.sqrt(width * height))
 
 
 def map_resolution(resolution, input_side, reference_side, *, role_cost=None, reference_cost=None):
@@ -296,7 +298,7 @@ def material_copies(objects, baked, uv_name, source_uv, created):
 def map_report(result, path):
     """One entry of the report's "maps": role, sizes, raw and file bytes before and after."""
     source, image = result.record.image, result.image
-    width, height = source.size
+    width, height = image_size(source)
     return {
         "role": result.record.role,
         "kind": result.kind,
@@ -307,7 +309,7 @@ def map_report(result, path):
         "new_image_file": path,
         "input_size": [int(width), int(height)],
         "new_size": [int(image.size[0]), int(image.size[1])],
-        "raw_bytes_before": _raw_bytes(width, height, result.alpha, source.is_float),
+        "raw_bytes_before": _raw_bytes(width, height, result.alpha, image_is_float(source)),
         "raw_bytes_after": _raw_bytes(image.size[0], image.size[1], result.alpha, image.is_float),
         "file_bytes_before": file_bytes(source),
         "file_bytes_after": file_bytes(image),

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core import cost as texel_cost
 from ..core.progress import InThread, RunProgress, format_seconds, report_while_waiting
-from .image_file import iter_read_image, iter_save_or_pack
+from .image_file import image_channels, image_size, iter_read_image, iter_save_or_pack
 from .material import base_color_image_node
 from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_side, image_stem, iter_loss_planes_of,
                             map_report, map_resolution, material_copies, memory_resolution, read_maps,
@@ -126,7 +126,7 @@ def _source_image(objects):
                          "tiles into one image first)")
     if image.source in {"SEQUENCE", "MOVIE"}:
         raise ValueError(f"image '{image.name}' is an image sequence or movie; use a single still image")
-    if image.size[0] == 0 or image.size[1] == 0:
+    if 0 in image_size(image):
         where = bpy.path.abspath(image.filepath) if image.filepath else "(no file path)"
         raise ValueError(f"image '{image.name}' has no pixels: its file {where} is missing or unreadable; "
                          "fix the path (Image > Replace) or pack the image")
@@ -254,10 +254,10 @@ def _iter_read_objects(objects, source_uv, settings, step):
     mesh = concatenate_meshes(per_object)
     yield step("read", 1, _READ_STEPS, "Loading the texture")
     image = _source_image(objects)
-    width, height = image.size
+    width, height = image_size(image)
     what = ", ".join(f"'{obj.name}'" for obj in objects)
     # Refused before the pixels are read when the run would not fit.
-    check_memory_budget(mesh.n_vertices, mesh.n_faces, (height, width, image.channels), workers=settings.workers,
+    check_memory_budget(mesh.n_vertices, mesh.n_faces, (height, width, image_channels(image)), workers=settings.workers,
                         screen_pixels=settings.max_screen_pixels, what=what)
     uses_image = np.concatenate([image_triangle_mask(obj, arrays, image) for obj, arrays in zip(objects, per_object)])
     reading = step("read", 2, _READ_STEPS, "Reading the texture's pixels")
@@ -651,7 +651,7 @@ def _memory_side(record, settings):
     from ..core.settings import role_cost
 
     override = role_cost(settings.role_costs, record.role)
-    return memory_resolution(record.image.size, settings.target_cost if override is None else override)
+    return memory_resolution(image_size(record.image), settings.target_cost if override is None else override)
 
 
 def _pack(uv_in, uv_fit, face_chart, input_size, settings, step, *, resolution=None):

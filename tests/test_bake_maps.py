@@ -376,7 +376,7 @@ def test_with_the_cost_in_memory_each_map_gets_that_share_of_its_own_pixels():
     from perceptual_uv.bridge.pipeline import _memory_side
 
     def record(role, width, height=None):
-        return SimpleNamespace(role=role, image=SimpleNamespace(size=(width, height or width)))
+        return SimpleNamespace(role=role, image=SimpleNamespace(size=(width, height or width), source="GENERATED"))
 
     quarter = OptimizeSettings(target_cost=0.25)
     # a 1k normal map beside a 2k base colour at a quarter of the memory: each keeps half its side

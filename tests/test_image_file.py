@@ -106,18 +106,38 @@ def test_a_float_image_keeps_blenders_save(tmp_path):
     assert image.source == "FILE" and not image.is_dirty
 
 
-@pytest.mark.parametrize("mode, suffix", [("RGB", "png"), ("RGBA", "png"), ("RGB", "jpg"), ("L", "png"), ("P", "png")])
-def test_a_file_image_reads_as_blender_holds_it(tmp_path, mode, suffix):
+@pytest.mark.parametrize("mode, suffix, decoded", [("RGB", "png", True), ("RGBA", "png", True), ("RGB", "jpg", True),
+                                                   ("L", "png", False), ("P", "png", False), ("L", "jpg", False)])
+def test_a_file_image_reads_as_blender_holds_it(tmp_path, mode, suffix, decoded):
     stored = (np.random.default_rng(1).random((37, 53, 4)) * 255).astype(np.uint8)
     path = tmp_path / f"texture.{suffix}"
     Image.fromarray(stored, "RGBA").convert(mode).save(path)
     image = bpy.data.images.load(str(path))
+    # RGB and RGBA files are decoded from the file without Blender loading the image; other modes fall back
+    assert (image_file.image_size(image) == (53, 37)) and (image.has_data != decoded)
     pixels = run_generator(image_file.iter_read_image(image))
+    assert image.has_data != decoded
     assert pixels.dtype == np.float32 and pixels.shape == (37, 53, 4)
     assert np.array_equal(pixels.ravel(), _pixels(image))  # foreach_get: what Blender holds
-    # RGB and RGBA files are decoded in the thread, other modes fall back to foreach_get
-    decoded = image_file._decode_rgba(image_file._decodable_source(image), (37, 53))
-    assert (decoded is not None) == (mode in ("RGB", "RGBA"))
+
+
+def test_a_16_bit_png_is_read_as_the_floats_blender_holds(tmp_path):
+    import struct
+    import zlib
+
+    rows = np.random.default_rng(4).integers(0, 65536, (5, 7, 3)).astype(">u2")
+    raw = b"".join(b"\x00" + row.tobytes() for row in rows)  # filter type 0 per row
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    png = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 7, 5, 16, 2, 0, 0, 0))
+           + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+    (tmp_path / "deep.png").write_bytes(png)
+    image = bpy.data.images.load(str(tmp_path / "deep.png"))
+    assert image_file._decodable_size(image_file._file_source(image)) is None  # not 8-bit: Blender's floats
+    assert np.array_equal(run_generator(image_file.iter_read_image(image)).ravel(), _pixels(image))
+    assert image.is_float
 
 
 def test_the_decode_runs_while_the_generator_hands_control_back(tmp_path, monkeypatch):
@@ -140,5 +160,5 @@ def test_an_edited_image_is_read_from_blender_not_from_its_file(tmp_path):
     image = bpy.data.images.load(str(tmp_path / "texture.png"))
     edited = np.full(8 * 8 * 4, 0.5, dtype=np.float32)
     image.pixels.foreach_set(edited)
-    assert image.is_dirty and image_file._decodable_source(image) is None
+    assert image.is_dirty and image_file._file_source(image) is None
     assert np.array_equal(run_generator(image_file.iter_read_image(image)).ravel(), _pixels(image))

@@ -657,3 +657,20 @@ def test_water_bottle_with_zero_area_uv_triangles(shared_models_dir):
     assert report["skipped_triangles"] == 80 and report["optimized_triangles"] == report["faces"] - 80
     assert any("80 of 4510 triangles have zero area in UV map" in note for note in report["notes"])
     assert abs(report["relative_cost"] - FAST["target_cost"]) <= 0.05 * FAST["target_cost"]
+
+
+def test_an_operator_run_reads_a_png_texture_without_blender_loading_it(tmp_path):
+    """With the bake in a background process (the modal operator's setting) the run decodes the texture's file in a
+    thread and takes its size from the header: Blender's copy of the image is never loaded in this process."""
+    from PIL import Image
+
+    rgb = (np.random.default_rng(5).random((64, 64, 3)) * 255).astype(np.uint8)
+    Image.fromarray(rgb, "RGB").save(tmp_path / "texture.png")
+    image = bpy.data.images.load(str(tmp_path / "texture.png"))
+    obj = textured_grid(image=image)
+    settings = dataclasses.replace(SETTINGS, bake_in_background=True)
+    result = run_to_end(optimize_objects([obj], settings, output_dir=str(tmp_path / "out")))
+    assert not image.has_data
+    (entry,) = result.report["maps"]
+    assert entry["input_size"] == [64, 64] and entry["raw_bytes_before"] == 64 * 64 * 3
+    assert result.uv_map in obj.data.uv_layers and os.path.isfile(entry["new_image_file"])
