@@ -53,7 +53,10 @@ def iter_read_image(image, *, interval=0.1):
         raise ValueError("no image")
     source = _file_source(image)
     if source is not None and _decodable_size(source) is not None:
-        return (yield from InThread(_decode_rgba, source, interval=interval).wait())
+        try:
+            return (yield from InThread(_decode_rgba, source, interval=interval).wait())
+        except (OSError, ValueError):  # a damaged file: Blender's own load decides what it holds
+            pass
     width, height = image.size
     channels = image.channels
     if width == 0 or height == 0 or len(image.pixels) == 0:

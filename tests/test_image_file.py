@@ -162,3 +162,14 @@ def test_an_edited_image_is_read_from_blender_not_from_its_file(tmp_path):
     image.pixels.foreach_set(edited)
     assert image.is_dirty and image_file._file_source(image) is None
     assert np.array_equal(run_generator(image_file.iter_read_image(image)).ravel(), _pixels(image))
+
+
+def test_a_damaged_png_gives_blenders_answer_not_a_decoder_error(tmp_path):
+    stored = (np.random.default_rng(6).random((32, 32, 3)) * 255).astype(np.uint8)
+    Image.fromarray(stored, "RGB").save(tmp_path / "whole.png")
+    data = (tmp_path / "whole.png").read_bytes()
+    (tmp_path / "cut.png").write_bytes(data[: len(data) // 2])  # the header says 32 x 32, the pixels stop halfway
+    image = bpy.data.images.load(str(tmp_path / "cut.png"))
+    assert image_file._decodable_size(image_file._file_source(image)) == (32, 32)
+    with pytest.raises(ValueError, match="has no pixels"):  # Blender cannot load it either: the clear message
+        run_generator(image_file.iter_read_image(image))
