@@ -243,8 +243,8 @@ def _iter_read_objects(objects, source_uv, settings, step):
     """Read, then validate, one part per step: yields ``step("read", ...)`` before each part and returns the
     image block, the validated input (mesh, texture for the loss, what to skip) and notes.
 
-    Loading the image's file (on its first use) is a single bpy call, one step however large the image is; its
-    pixels are decoded in a thread where they can be (:func:`.image_file.iter_read_image`).
+    An 8-bit PNG or JPEG is sized from its file's header and decoded in a thread (:mod:`.image_file`): Blender
+    does not load it here. Any other image's load is a single bpy call, one step however large the image is.
     """
     from ..core.mesh import concatenate_meshes
     from ..core.validate import check_memory_budget, validate_inputs
