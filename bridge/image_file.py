@@ -70,22 +70,25 @@ def image_size(image):
     """``(width, height)`` of ``image``: from its file's header when :func:`iter_read_image` decodes that file
     (Blender does not load the image for it), else ``image.size`` (which loads it; ``(0, 0)`` when the file is
     missing)."""
-    source = _file_source(image)
-    size = None if source is None else _decodable_size(source)
+    size = _decoded_size(image)
     return size if size is not None else tuple(image.size)
 
 
 def image_channels(image):
     """The channels :func:`iter_read_image` gives: 4 for a file it decodes (as Blender holds RGB and RGBA files),
     else ``image.channels``."""
-    source = _file_source(image)
-    return 4 if source is not None and _decodable_size(source) is not None else image.channels
+    return 4 if _decoded_size(image) is not None else image.channels
 
 
 def image_is_float(image):
     """Whether Blender holds ``image`` as floats, without loading a file :func:`iter_read_image` decodes (8-bit)."""
+    return False if _decoded_size(image) is not None else image.is_float
+
+
+def _decoded_size(image):
+    """``(width, height)`` of an image :func:`iter_read_image` decodes from its file, from the header; else None."""
     source = _file_source(image)
-    return False if source is not None and _decodable_size(source) is not None else image.is_float
+    return None if source is None else _decodable_size(source)
 
 
 def _file_source(image):
@@ -197,17 +200,25 @@ def _png_bytes(values, channels):
     return buffer.getvalue()
 
 
-def _write_new_file(stem, data):
-    """Write ``data`` to ``stem.png``, or ``stem.001.png`` and so on when a file has that name; returns the path."""
-    os.makedirs(os.path.dirname(stem) or ".", exist_ok=True)
-    path, counter = f"{stem}.png", 1
+def _new_names(stem):
+    """``stem.png``, then ``stem.001.png``, ``stem.002.png`` and so on: the names a new image may take."""
+    yield f"{stem}.png"
+    counter = 1
     while True:
+        yield f"{stem}.{counter:03d}.png"
+        counter += 1
+
+
+def _write_new_file(stem, data):
+    """Write ``data`` to the first of :func:`_new_names` that no file has; returns the path."""
+    os.makedirs(os.path.dirname(stem) or ".", exist_ok=True)
+    for path in _new_names(stem):
         try:
             with open(path, "xb") as file:  # exclusive: another program's file of that name is never replaced
                 file.write(data)
             return path
         except FileExistsError:
-            path, counter = f"{stem}.{counter:03d}.png", counter + 1
+            continue
 
 
 def _pack_png(image, data):
@@ -227,9 +238,8 @@ def _save_in_blender(image, folder):
         image.pack()
         return None, None
     stem = os.path.join(bpy.path.abspath(folder), bpy.path.clean_name(image.name))
-    path, counter = f"{stem}.png", 1
-    while os.path.exists(path):  # never overwrite a file (e.g. an earlier run's image still used elsewhere)
-        path, counter = f"{stem}.{counter:03d}.png", counter + 1
+    # never overwrite a file (e.g. an earlier run's image still used elsewhere)
+    path = next(name for name in _new_names(stem) if not os.path.exists(name))
     image.filepath_raw = path
     image.file_format = "PNG"
     try:

@@ -54,6 +54,13 @@ def _deform(px, py, a00, a01, a10, a11, cx, cy):
     return a00 * dx + a01 * dy + cx - 0.5, a10 * dx + a11 * dy + cy - 0.5
 
 
+@njit(inline="always")
+def _dense_grid_fits(width, height, count):
+    """Numba: whether a dense grid over a ``width`` x ``height`` box of texel cells is small enough next to the
+    ``count`` points that fill it (otherwise the cells go through a hash table)."""
+    return width * height <= 16 * count + 4096
+
+
 @njit
 def _deformed_ids(points, a00, a01, a10, a11, cx, cy):
     """Numba: texel ids (first occurrence, local) and bilinear weights of the deformed points.
@@ -89,7 +96,7 @@ def _deformed_ids(points, a00, a01, a10, a11, cx, cy):
         return ids, weights, np.zeros(0, np.int64)
     width = max_x - min_x + 2
     height = max_y - min_y + 2
-    if width * height <= 16 * count + 4096:
+    if _dense_grid_fits(width, height, count):
         grid = np.full(width * height, -1, np.int64)
         texel = np.empty(4 * count, np.int64)
         n_texels = 0
@@ -185,11 +192,11 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ri
         corners[corner, 0] = box[corner & 1]
         corners[corner, 1] = box[2 + (corner >> 1)]
     ox, oy, width, height = _cell_grid(corners, a00, a01, a10, a11, cx, cy)
-    if width * height > 16 * count + 4096:
+    if not _dense_grid_fits(width, height, count):
         ox, oy, width, height = _cell_grid(points, a00, a01, a10, a11, cx, cy)
     # Cells are found through a dense grid over the box, or through a hash table when the box is sparse (a
     # one-ring across UV seams spans distant islands; minified footprints spread out).
-    dense = width * height <= 16 * count + 4096
+    dense = _dense_grid_fits(width, height, count)
     grid = np.full(width * height if dense else 0, -1, np.int64)
     table_bits = 4
     while (1 << table_bits) < 4 * count:
