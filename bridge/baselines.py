@@ -31,8 +31,8 @@ from ..core.meshwise import solve_meshwise
 from ..core.overlap import FOLD_TOLERANCE
 from ..core.result_cache import dataclass_from, save_arrays
 from ..core.ssp import solve_ssp, ssp_targets
-from ..core.trianglewise import (MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult, losses_at,
-                                 losses_of, optimize_triangles)
+from ..core.trianglewise import losses_at, losses_of, optimize_triangles
+from ..core.trianglewise_result import MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
@@ -225,7 +225,7 @@ def triangle_targets(objects, *, source_uv, epsilon, evaluations, screen_pixels=
 
     Returns
     -------
-    result : core.trianglewise.TrianglewiseResult
+    result : core.trianglewise_result.TrianglewiseResult
     seconds : float
     """
     V, F, uv = mesh_arrays(objects, source_uv)
@@ -299,20 +299,20 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
 
     Parameters
     ----------
-    triangles : core.trianglewise.TrianglewiseResult
+    triangles : core.trianglewise_result.TrianglewiseResult
         Of every face; its ``fit_targets()`` and ``fit_weights()`` drive the fit, as in the pipeline.
     weights : {"perceptual", "identity"}
     formulation : {"perceptual", "common"}
     rotation_scale : float, optional
-        Of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights` for one fit; 1 fits Eq. 16's rotation
+        Of :meth:`~core.trianglewise_result.TrianglewiseResult.fit_weights` for one fit; 1 fits Eq. 16's rotation
         targets, 0 leaves them out.
     workers : int, optional
         Processes measuring E for the default (``core.trianglewise.losses_at``; 0: one per core).
     min_texels, signal_weight : float, optional
-        Of :meth:`~core.trianglewise.TrianglewiseResult.fit_targets` (the texel floor and the signal-stretch
+        Of :meth:`~core.trianglewise_result.TrianglewiseResult.fit_targets` (the texel floor and the signal-stretch
         blend; 0 turns each off).
     weight_floor : float, optional
-        ``floor`` of :meth:`~core.trianglewise.TrianglewiseResult.fit_weights`.
+        ``floor`` of :meth:`~core.trianglewise_result.TrianglewiseResult.fit_weights`.
     fold_tolerance : float, optional
         Of :func:`core.overlap.restore_folded_charts`, for the default.
     planes : core.loss_planes.PlaneStack, optional

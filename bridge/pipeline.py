@@ -37,7 +37,7 @@ def triangle_results():
     panel, a second CLI run) skips the stage. Made on first use, so importing this module stays light."""
     if not _TRIANGLE_RESULTS:
         from ..core.result_cache import ResultCache, default_cache_folder
-        from ..core.trianglewise import TrianglewiseResult
+        from ..core.trianglewise_result import TrianglewiseResult
 
         _TRIANGLE_RESULTS.append(ResultCache(TrianglewiseResult, folder=default_cache_folder()))
     return _TRIANGLE_RESULTS[0]

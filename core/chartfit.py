@@ -19,7 +19,7 @@ import inspect
 import numpy as np
 
 from .charts import UVTopology, uv_topology
-from .meshwise import MeshwiseResult, flipped_triangles, iter_solve_meshwise, orient_charts
+from .meshwise import flipped_triangles, iter_solve_meshwise, orient_charts
 from .overlap import FOLD_TOLERANCE, restore_folded_charts, shared_area_fractions
 from .progress import run_generator
 
@@ -46,7 +46,7 @@ class ChartFit:
         Triangles whose orientation differs from the input's in ``uv``.
     topology : UVTopology
         Charts of the input (the output has the same ones).
-    fits : tuple of two MeshwiseResult
+    fits : tuple of two .meshwise.MeshwiseResult
         The fits without and with the rotation terms, as the solver returned them.
     """
 

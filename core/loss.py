@@ -607,7 +607,6 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
         adjacency = one_ring_faces(F, V=V)
     ring_offsets, ring = adjacency
     cameras = triangle_cameras(V, F, faces, screen_pixels=n)
-    scale = np.array([w, h], dtype=np.float64)
 
     k = len(faces)
     centres = np.empty((k, 2))

@@ -975,7 +975,7 @@ def orient_charts(uv_in, uv_new, face_chart, alpha, w_R, *, texel_scale=(1.0, 1.
     exp(j (d_i - k_i pi/2))``, both of which only lower it. A chart keeps its angle unless turning it lowers
     the energy. Fitting the rotation terms inside Eq. 19 instead bends charts whose triangles want different
     rotations, and the bending pulls the triangles off their stretch targets (see
-    :meth:`~.trianglewise.TrianglewiseResult.fit_weights`); a rigid turn cannot.
+    :meth:`~.trianglewise_result.TrianglewiseResult.fit_weights`); a rigid turn cannot.
 
     References
     ----------

@@ -2,7 +2,7 @@
 """Signal-Specialized Parametrization (Sander, Gortler, Snyder, Hoppe 2002), the baseline of Sec. 5.2.2.
 
 Its expected stretch (:func:`ssp_targets`) is also half of our own mesh-wise targets' areas
-(:meth:`.trianglewise.TrianglewiseResult.fit_targets`).
+(:meth:`.trianglewise_result.TrianglewiseResult.fit_targets`).
 
 SSP allocates texels where the signal varies. For piecewise-constant reconstruction with texel spacing
 ``delta`` the mean squared error at a surface point is ``delta^2 / 12 |grad_t f|^2``, with ``grad_t f`` the

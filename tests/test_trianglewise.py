@@ -11,6 +11,7 @@ import pytest
 
 from perceptual_uv.core import spawn
 from perceptual_uv.core import trianglewise as tw
+from perceptual_uv.core import trianglewise_result
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.loss import triangle_problem
 from perceptual_uv.core.progress import run_generator
@@ -405,7 +406,7 @@ def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
     # The four triangles of the texel-floor test, slices of 3 faces: two slices, (3, 4) then (4, 4), and the
     # floored targets of the test above; with a second plane two more steps count up to 8.
     texture, uv, params, result = _hand_placed_targets()
-    monkeypatch.setattr(tw, "TARGET_SLICE", 3)
+    monkeypatch.setattr(trianglewise_result, "TARGET_SLICE", 3)
     stage = result.iter_fit_targets(uv, texture, min_texels=2.0)
     steps = []
     while True:
