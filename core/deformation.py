@@ -92,8 +92,8 @@ def inverse_2x2(matrices):
     Notes
     -----
     ``numpy.linalg.inv`` calls LAPACK once per matrix; with a multi-threaded OpenBLAS on busy cores each call
-    waits for its threads, and 4672 of them took 11-20 s on this project's 2-core machine (0.9 ms with one BLAS
-    thread). The closed form is plain array arithmetic.
+    waits for its threads, so a batch of small inverses can take seconds in the interface's thread. The closed
+    form is plain array arithmetic.
     """
     m = np.asarray(matrices, dtype=np.float64)
     if m.shape[-2:] != (2, 2):

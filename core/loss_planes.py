@@ -13,13 +13,10 @@ compares grey screens (Eq. 3, 5), so every map becomes one or more scalar planes
   decoded unit normal ``normalize(2 rgb - 1)`` of each texel (:func:`normal_shading`). The lights span the
   three components of ``n`` (unclamped, ``n . l`` is linear in ``n``); they are symmetric about the
   tangent axis, so a map in DirectX convention (green flipped) gives the same loss as its OpenGL twin; at
-  30 degrees elevation the shading of normals tilted up to 60 degrees from the surface stays unclamped.
-  Measured on WaterBottle's normal map (``bench/joint_loss.py``, 118 triangles x 16 random deformations of
-  the box, 64 px views) against the largest E over 48 lights (16 azimuths x 30, 45, 60 degrees): these
-  three lights reach a median 0.97 of it (5th percentile 0.85) and decide ``E <= 0.01`` differently on
-  2.1 % of the samples; six lights at 30 degrees 0.98 and 1.7 %; three or four at 45 degrees only 0.69 and
-  10-11 %, three at 60 degrees 0.38 and 20 % (the tangential part of the shading, which carries the
-  detail, scales with the cosine of the elevation).
+  30 degrees elevation the shading of normals tilted up to 60 degrees from the surface stays unclamped, and
+  the tangential part of the shading, which carries the detail, scales with the cosine of the elevation: low
+  lights see it best (against the largest E over 48 lights, ``bench/joint_loss.py``; figures in
+  docs/DECISIONS.md).
   Shading is taken per texel and then interpolated (the loss's screen operator stays linear in the texel
   values, Eq. 8-9); a renderer interpolates and normalizes the normal first, a second-order difference
   within one texel.

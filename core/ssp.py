@@ -675,9 +675,8 @@ def ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, c
     rooted. The common factor ``c`` does not change SSP's optimum (the texture resolution is set by the cost
     afterwards) but the mesh-wise solver is not scale-free (its flip barrier acts below
     ``0.5 min(1, det S_bar)``), so the targets are scaled like the triangle-wise stage's, ``lambda <= 1``
-    (Eq. 14). Measured on the bundled spot model (5856 faces, 100 mesh-wise iterations), ``E_SSP`` of the
-    SSPOP map is 547 with this scaling and 83,600 with targets that keep the input's UV area (input 4,815,
-    SSP 288).
+    (Eq. 14); with targets that keep the input's UV area the barrier dominates and SSPOP's signal stretch
+    ``E_SSP`` comes out far above the input's (docs/DECISIONS.md).
 
     References
     ----------
