@@ -44,7 +44,7 @@ TARGET_SLICE = 2048
 
 @dataclasses.dataclass(frozen=True)
 class TrianglewiseResult:
-    """Output of :func:`optimize_triangles`, one row per optimized face.
+    """Output of :func:`.trianglewise.optimize_triangles`, one row per optimized face.
 
     Attributes
     ----------
@@ -65,9 +65,9 @@ class TrianglewiseResult:
     epsilon, lambda_min : float
     formulation, backend : str
     unevaluated : (k,) bool ndarray, optional
-        Faces whose loss could not be evaluated (:class:`LossNotEvaluableError`); their ``params`` are the
-        identity, their loss NaN and their weights 0, so the mesh-wise stage keeps their input shape and size.
-        All False by default.
+        Faces whose loss could not be evaluated (:class:`.trianglewise.LossNotEvaluableError`); their ``params``
+        are the identity, their loss NaN and their weights 0, so the mesh-wise stage keeps their input shape and
+        size. All False by default.
 
     See Also
     --------
@@ -116,7 +116,7 @@ class TrianglewiseResult:
         uv : (m, 3, 2) array_like of float64
             The input per-corner UVs the stage ran on (rows :attr:`faces` are used).
         luma : (h, w) or (h, w, c) array_like, or sequence of (h_i, w_i) ndarrays
-            Its texture or stack of planes, as given to :func:`optimize_triangles`.
+            Its texture or stack of planes, as given to :func:`.trianglewise.optimize_triangles`.
         min_texels : float, optional
             Texel area a textured triangle keeps when both stretches sit at the floor (0: no floor). With a
             stack, the texels are those of the densest plane in which the triangle is textured.
