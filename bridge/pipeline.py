@@ -382,7 +382,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     try:
         yield from _iter_import_stages(step)
         from ..core.chartfit import iter_fit_charts
-        from ..core.loss import above_bound
+        from ..core.loss import above_bound, iter_textured_triangles
         from ..core.result_cache import result_key
         from ..core.ssp import iter_ssp_targets
         from ..core.trianglewise import iter_losses_at, iter_losses_of, iter_optimize_triangles
@@ -452,8 +452,11 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         clock = time.perf_counter()
         stage = iter_ssp_targets(V, F, uv_in, texture)
         signal, _, _ = yield from _relay(stage, "mesh", "Measuring the texture's signal stretch", clock, step)
+        # Which optimized triangles show texture in which plane: the fit's targets and the report's bound use it.
+        stage = iter_textured_triangles(uv_in[triangles.faces], planes, per_plane=True)
+        textured = yield from _relay(stage, "mesh", "Finding the textured triangles", time.perf_counter(), step)
         # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
-        stage = triangles.iter_fit_targets(uv_in, planes, signal_targets=signal)
+        stage = triangles.iter_fit_targets(uv_in, planes, signal_targets=signal, textured=textured)
         targets = yield from _relay(stage, "mesh", "Setting the mesh-wise fit's targets", time.perf_counter(), step)
         params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
         stage = iter_losses_of(V, F, uv_in, planes, targets, screen_pixels=settings.screen_pixels,
@@ -589,8 +592,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),
             "restored_charts": int(restored.size),
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
-            "textured_above_bound": above_bound(uv_in[faces], planes, settings.epsilon, targets=target_losses,
-                                                fit=losses[faces]),
+            "textured_above_bound": above_bound(uv_in[faces], planes, settings.epsilon, textured=textured.any(axis=0),
+                                                targets=target_losses, fit=losses[faces]),
             "unevaluated_triangles": unevaluated,
             "optimized_triangles": int(len(faces)),
             "skipped_triangles": int(m - len(faces)),

@@ -60,10 +60,11 @@ from .gmsd import GMSD_C, _covered_gradient_kernel, _pooled_index, covered_gmsd
 from .loss_planes import StackBatch, StackProblem, texture_luma, texture_planes
 from .loss_stack import _evaluate_planes_kernel
 from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
+from .progress import run_generator
 from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
 
 __all__ = ["VIEW_FACES", "TriangleProblem", "TriangleBatch", "StackProblem", "StackBatch", "texture_luma",
-           "texture_planes", "textured_triangles", "above_bound",
+           "texture_planes", "textured_triangles", "iter_textured_triangles", "above_bound",
            "triangle_problem", "prepare_triangles", "render_reference"]
 
 #: Which faces a triangle's view draws: ``"window"`` (default) the one-ring and the faces connected to it that
@@ -71,9 +72,13 @@ __all__ = ["VIEW_FACES", "TriangleProblem", "TriangleBatch", "StackProblem", "St
 #: vertex with it (:func:`.one_ring.one_ring_faces`), as Sec. 4.1 (after Eq. 6) and App. A describe.
 VIEW_FACES = ("window", "one_ring")
 
+#: Faces :func:`iter_textured_triangles` tests in one plane between two yields (a few hundredths of a second on a
+#: 2k texture).
+TEXTURED_SLICE = 2048
 
 
-def above_bound(uv, luma, epsilon, **losses):
+
+def above_bound(uv, luma, epsilon, *, textured=None, **losses):
     """Fractions of the textured triangles whose loss E exceeds epsilon, for each named set of losses.
 
     Parameters
@@ -84,6 +89,9 @@ def above_bound(uv, luma, epsilon, **losses):
         Their texture, or the stack of planes the losses were measured on (:func:`.loss_planes.texture_planes`).
     epsilon : float
         The bound of Eq. 7.
+    textured : (k,) array_like of bool, optional
+        :func:`textured_triangles` of ``uv`` and ``luma`` when the caller has it already (``luma`` is then not
+        read).
     **losses : (k,) array_like of float
         E per triangle, e.g. ``targets=`` at the mesh-wise fit's targets and ``fit=`` after the fit; NaN and
         infinite values count as above the bound.
@@ -101,7 +109,11 @@ def above_bound(uv, luma, epsilon, **losses):
     signal-stretch blend above all, then the texel floor) moves them past the bound the triangle-wise search
     kept (Sec. 4.1); the fraction after the fit, how far the fit moves the triangles off their targets.
     """
-    textured = textured_triangles(uv, luma)
+    if textured is None:
+        textured = textured_triangles(uv, luma)
+    textured = np.asarray(textured, dtype=bool)
+    if textured.shape != (len(uv),):
+        raise ValueError(f"textured must have a value per triangle, shape ({len(uv)},), got {textured.shape}")
     count = int(np.count_nonzero(textured))
     out = {"textured_triangles": count}
     for name, values in losses.items():
@@ -112,7 +124,7 @@ def above_bound(uv, luma, epsilon, **losses):
     return out
 
 
-def textured_triangles(uv, luma):
+def textured_triangles(uv, luma, *, per_plane=False):
     """Which triangles show texture of their own: the texels their bilinear lookups read are not all equal.
 
     Parameters
@@ -122,29 +134,43 @@ def textured_triangles(uv, luma):
     luma : (h, w) or (h, w, c) array_like, or sequence of (h_i, w_i) ndarrays
         Texture (row 0 = bottom), as for :func:`prepare_triangles`, or a stack of planes each on its own texel
         grid (:func:`.loss_planes.texture_planes`); it repeats outside ``[0, 1]^2``.
+    per_plane : bool, optional
+        Give the answer for every plane of the stack separately.
 
     Returns
     -------
-    (m,) ndarray of bool
-        False where, in every plane, one value fills every texel any point of the triangle reads (constant
-        texture, or a triangle inside a flat area whose neighbours may differ).
+    (m,) ndarray of bool, or (p, m) with ``per_plane``
+        False where, in every plane (in plane ``j`` for row ``j``), one value fills every texel any point of the
+        triangle reads (constant texture, or a triangle inside a flat area whose neighbours may differ).
 
     Notes
     -----
     Exact for bilinear lookups: texel ``t`` is read when some point of the triangle lies less than one texel
     from its centre in both axes.
     """
+    return run_generator(iter_textured_triangles(uv, luma, per_plane=per_plane))
+
+
+def iter_textured_triangles(uv, luma, *, per_plane=False):
+    """Generator form of :func:`textured_triangles` (same parameters and value): yields ``(done, total)`` pairs of
+    a face and a plane tested, after each slice of :data:`TEXTURED_SLICE` faces of each plane, so that a caller
+    driving an interface can hand control back between slices."""
     planes = texture_planes(luma)
     uv = np.asarray(uv, dtype=np.float64)
     if uv.ndim != 3 or uv.shape[1:] != (3, 2):
         raise ValueError(f"uv must have shape (m, 3, 2), got {uv.shape}")
     if not np.isfinite(uv).all():
         raise ValueError("uv must be finite")
-    textured = np.zeros(len(uv), dtype=bool)
-    for plane in planes:
+    m = len(uv)
+    textured = np.zeros((len(planes), m), dtype=bool)
+    for number, plane in enumerate(planes):
         h, w = plane.shape
-        textured |= _textured_kernel(plane, np.ascontiguousarray(uv * np.array([w, h], dtype=np.float64)))
-    return textured
+        texels = np.ascontiguousarray(uv * np.array([w, h], dtype=np.float64))
+        for start in range(0, m, TEXTURED_SLICE):
+            stop = min(m, start + TEXTURED_SLICE)
+            textured[number, start:stop] = _textured_kernel(plane, texels[start:stop])
+            yield number * m + stop, len(planes) * m
+    return textured if per_plane else textured.any(axis=0)
 
 
 def _check_inputs(V, F, uv):

@@ -25,7 +25,7 @@ import dataclasses
 import numpy as np
 
 from .charts import texel_areas
-from .loss import textured_triangles
+from .loss import iter_textured_triangles
 from .loss_planes import texture_planes
 from .progress import run_generator
 
@@ -37,9 +37,6 @@ STRETCH_WEIGHT_FLOOR = 1e-6
 MIN_TEXELS = 2.0
 #: Weight of signal stretch's area in a textured triangle's target area (geometric blend).
 SIGNAL_WEIGHT = 0.5
-# Faces whose texels :meth:`TrianglewiseResult.iter_fit_targets` tests between two yields (a few hundredths of
-# a second on a 2k texture).
-TARGET_SLICE = 2048
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,7 +90,8 @@ class TrianglewiseResult:
         if self.unevaluated is None:
             object.__setattr__(self, "unevaluated", np.zeros(len(self.faces), dtype=bool))
 
-    def fit_targets(self, uv, luma, *, min_texels=MIN_TEXELS, signal_targets=None, signal_weight=SIGNAL_WEIGHT):
+    def fit_targets(self, uv, luma, *, min_texels=MIN_TEXELS, signal_targets=None, signal_weight=SIGNAL_WEIGHT,
+                    textured=None):
         """Targets for the mesh-wise fit (:meth:`iter_fit_targets` run to its end; see it for the parameters).
 
         Returns
@@ -101,15 +99,15 @@ class TrianglewiseResult:
         (k, 4) float64 ndarray
         """
         return run_generator(self.iter_fit_targets(uv, luma, min_texels=min_texels, signal_targets=signal_targets,
-                                                   signal_weight=signal_weight))
+                                                   signal_weight=signal_weight, textured=textured))
 
     def iter_fit_targets(self, uv, luma, *, min_texels=MIN_TEXELS, signal_targets=None,
-                         signal_weight=SIGNAL_WEIGHT):
+                         signal_weight=SIGNAL_WEIGHT, textured=None):
         """Generator: targets for the mesh-wise fit: :attr:`params` with no stretch of a textured triangle below
         the texel floor ``lambda >= sqrt(min_texels / A)``, ``A`` its input area in texels (at most 1), and, given
         signal stretch's targets, each textured triangle's target area drawn towards the area signal stretch
-        gives it. Yields ``(done, total)`` after each slice of :data:`TARGET_SLICE` faces whose texels it tested
-        (:func:`.loss.textured_triangles`); returns the targets.
+        gives it. Yields ``(done, total)`` after each slice of faces whose texels it tested
+        (:func:`.loss.iter_textured_triangles`); returns the targets.
 
         Parameters
         ----------
@@ -128,6 +126,9 @@ class TrianglewiseResult:
             floor), ``b`` the signal-stretch area, ``s`` the median of ``a / b`` over the textured triangles (SSP
             fixes areas only up to a common factor). Each triangle keeps its own stretch ratio and orientation,
             and no stretch exceeds 1 (Eq. 14). 0 leaves the areas alone.
+        textured : (p, k) array_like of bool, optional
+            ``textured_triangles(uv[faces], luma, per_plane=True)`` (:func:`.loss.textured_triangles`) when the
+            caller has it already; nothing is tested then.
 
         Returns
         -------
@@ -174,23 +175,19 @@ class TrianglewiseResult:
         if min_texels == 0 and not blend:
             return params
         uv = uv[self.faces]
-        total = len(uv) * len(planes)
-
-        def textured_in(plane, number):  # a generator: a slice of faces at a time
-            own = np.zeros(len(uv), dtype=bool)
-            for start in range(0, len(uv), TARGET_SLICE):
-                own[start:start + TARGET_SLICE] = textured_triangles(uv[start:start + TARGET_SLICE], plane)
-                yield number * len(uv) + min(len(uv), start + TARGET_SLICE), total
-            return own
-
+        if textured is None:
+            textured = yield from iter_textured_triangles(uv, planes, per_plane=True)
+        own = np.asarray(textured, dtype=bool)
+        if own.shape != (len(planes), len(uv)):
+            raise ValueError(f"textured must have shape ({len(planes)}, {len(uv)}), a row per plane and a column per "
+                             f"face of the result, got {own.shape}")
+        # A stack: the floor counts texels of the densest plane in which the triangle is textured.
         area = texel_areas(uv, planes[0].shape[1], planes[0].shape[0])
-        textured = yield from textured_in(planes[0], 0)
+        textured = own[0].copy()
         for number, plane in enumerate(planes[1:], start=1):
-            # A stack: the floor counts texels of the densest plane in which the triangle is textured.
-            own = yield from textured_in(plane, number)
             own_area = texel_areas(uv, plane.shape[1], plane.shape[0])
-            area = np.where(own & (~textured | (own_area > area)), own_area, area)
-            textured |= own
+            area = np.where(own[number] & (~textured | (own_area > area)), own_area, area)
+            textured |= own[number]
         textured &= ~self.unevaluated
         if min_texels > 0:
             with np.errstate(divide="ignore"):

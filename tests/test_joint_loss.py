@@ -231,6 +231,28 @@ def test_textured_triangles_and_above_bound_take_any_plane():
     losses = np.where(either, 0.02, 0.0)
     assert loss.above_bound(uv, [left, right], 0.01, fit=losses) == {"textured_triangles": int(either.sum()),
                                                                      "fit": 1.0}
+    per_plane = loss.textured_triangles(uv, [left, right], per_plane=True)
+    np.testing.assert_array_equal(per_plane, [loss.textured_triangles(uv, left), loss.textured_triangles(uv, right)])
+    # A mask given by the caller is taken as it is: the planes are not read.
+    assert loss.above_bound(uv, None, 0.01, textured=~either, fit=losses) == {
+        "textured_triangles": int((~either).sum()), "fit": 0.0}
+
+
+def test_the_texel_test_hands_control_back_after_each_slice_of_faces_of_each_plane(monkeypatch):
+    V, F, uv = grid_mesh()
+    planes = [np.arange(64.0).reshape(8, 8), np.zeros((4, 4))]
+    monkeypatch.setattr(loss, "TEXTURED_SLICE", len(uv) // 2 + 1)
+    stage = loss.iter_textured_triangles(uv, planes)
+    steps = []
+    while True:
+        try:
+            steps.append(next(stage))
+        except StopIteration as finished:
+            textured = finished.value
+            break
+    m = len(uv)
+    assert steps == [(m // 2 + 1, 2 * m), (m, 2 * m), (m + m // 2 + 1, 2 * m), (2 * m, 2 * m)]
+    np.testing.assert_array_equal(textured, loss.textured_triangles(uv, planes[0]))
 
 
 def test_losses_of_a_stack_are_the_max_of_each_planes(scene):

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core import spawn
+from perceptual_uv.core import loss
 from perceptual_uv.core import trianglewise as tw
-from perceptual_uv.core import trianglewise_result
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.loss import triangle_problem
 from perceptual_uv.core.progress import run_generator
@@ -406,7 +406,7 @@ def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
     # The four triangles of the texel-floor test, slices of 3 faces: two slices, (3, 4) then (4, 4), and the
     # floored targets of the test above; with a second plane two more steps count up to 8.
     texture, uv, params, result = _hand_placed_targets()
-    monkeypatch.setattr(trianglewise_result, "TARGET_SLICE", 3)
+    monkeypatch.setattr(loss, "TEXTURED_SLICE", 3)
     stage = result.iter_fit_targets(uv, texture, min_texels=2.0)
     steps = []
     while True:
@@ -420,6 +420,14 @@ def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
                                          [0.1, 0.6, 0.9, 0.4]], rtol=1e-12)
     steps = list(result.iter_fit_targets(uv, [texture, texture], min_texels=2.0))
     assert steps == [(3, 8), (4, 8), (7, 8), (8, 8)]
+    # Given the texel test's answer, the targets are the same and nothing is tested (no step).
+    textured = loss.textured_triangles(uv[result.faces], texture, per_plane=True)
+    stage = result.iter_fit_targets(uv, texture, min_texels=2.0, textured=textured)
+    with pytest.raises(StopIteration) as finished:
+        next(stage)
+    np.testing.assert_array_equal(finished.value.value, targets)
+    with pytest.raises(ValueError, match="textured must have shape"):
+        result.fit_targets(uv, texture, min_texels=2.0, textured=textured[:, :2])
 
 
 def test_fit_targets_draw_textured_areas_towards_signal_stretch_geometrically():
