@@ -77,7 +77,6 @@ VIEW_FACES = ("window", "one_ring")
 TEXTURED_SLICE = 2048
 
 
-
 def above_bound(uv, luma, epsilon, *, textured=None, **losses):
     """Fractions of the textured triangles whose loss E exceeds epsilon, for each named set of losses.
 
