@@ -9,6 +9,7 @@ from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.loss_planes import (NORMAL_LIGHTS, PlaneStack, StackProblem, conjugate_params, loss_planes,
                                             normal_shading, texture_planes)
+from perceptual_uv.core.progress import run_generator
 
 from meshes import grid_mesh  # tests/ is on sys.path under pytest
 
@@ -242,14 +243,8 @@ def test_the_texel_test_hands_control_back_after_each_slice_of_faces_of_each_pla
     V, F, uv = grid_mesh()
     planes = [np.arange(64.0).reshape(8, 8), np.zeros((4, 4))]
     monkeypatch.setattr(loss, "TEXTURED_SLICE", len(uv) // 2 + 1)
-    stage = loss.iter_textured_triangles(uv, planes)
     steps = []
-    while True:
-        try:
-            steps.append(next(stage))
-        except StopIteration as finished:
-            textured = finished.value
-            break
+    textured = run_generator(loss.iter_textured_triangles(uv, planes), lambda *step: steps.append(step))
     m = len(uv)
     assert steps == [(m // 2 + 1, 2 * m), (m, 2 * m), (m + m // 2 + 1, 2 * m), (2 * m, 2 * m)]
     np.testing.assert_array_equal(textured, loss.textured_triangles(uv, planes[0]))

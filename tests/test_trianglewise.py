@@ -407,14 +407,8 @@ def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
     # floored targets of the test above; with a second plane two more steps count up to 8.
     texture, uv, params, result = _hand_placed_targets()
     monkeypatch.setattr(loss, "TEXTURED_SLICE", 3)
-    stage = result.iter_fit_targets(uv, texture, min_texels=2.0)
     steps = []
-    while True:
-        try:
-            steps.append(next(stage))
-        except StopIteration as finished:
-            targets = finished.value
-            break
+    targets = run_generator(result.iter_fit_targets(uv, texture, min_texels=2.0), lambda *step: steps.append(step))
     assert steps == [(3, 4), (4, 4)]
     np.testing.assert_allclose(targets, [[0.3, 0.5, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 1.0, 1.0, 0.0],
                                          [0.1, 0.6, 0.9, 0.4]], rtol=1e-12)
@@ -422,10 +416,11 @@ def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
     assert steps == [(3, 8), (4, 8), (7, 8), (8, 8)]
     # Given the texel test's answer, the targets are the same and nothing is tested (no step).
     textured = loss.textured_triangles(uv[result.faces], texture, per_plane=True)
-    stage = result.iter_fit_targets(uv, texture, min_texels=2.0, textured=textured)
-    with pytest.raises(StopIteration) as finished:
-        next(stage)
-    np.testing.assert_array_equal(finished.value.value, targets)
+    steps = []
+    given = run_generator(result.iter_fit_targets(uv, texture, min_texels=2.0, textured=textured),
+                          lambda *step: steps.append(step))
+    assert steps == []
+    np.testing.assert_array_equal(given, targets)
     with pytest.raises(ValueError, match="textured must have shape"):
         result.fit_targets(uv, texture, min_texels=2.0, textured=textured[:, :2])
 
