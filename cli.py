@@ -123,6 +123,9 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
                         help=f"largest per-triangle view size (default {DEFAULTS.max_screen_pixels}; lower it "
                              "to bound the time on large textures)")
     parser.add_argument("--margin", type=int, default=DEFAULTS.margin, help="island margin in pixels")
+    parser.add_argument("--unstack", dest="keep_stacks", action="store_false",
+                        help="give every UV island texels of its own, also islands that share texels in the input "
+                             "(by default they stay stacked and the new images hold those texels once)")
     parser.add_argument("--cost-for", dest="cost_for", action="append", type=_role_cost, default=[],
                         metavar="ROLE=COST",
                         help="relative cost of one kind of map instead of --cost's, e.g. normal=0.2 (repeatable; "
@@ -211,7 +214,8 @@ def _validate(args):
             args.settings = OptimizeSettings(
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
                 screen_pixels=args.screen_pixels, max_screen_pixels=args.max_screen_pixels, margin=args.margin,
-                workers=args.workers, seed=args.seed, reuse_triangle_results=not args.fresh,
+                keep_stacks=args.keep_stacks, workers=args.workers, seed=args.seed,
+                reuse_triangle_results=not args.fresh,
                 bake_in_background=args.bake_in_background, role_costs=tuple(args.cost_for),
                 cost_measure=args.cost_measure,
                 scheduler=args.scheduler if args.command == "optimize" else None)

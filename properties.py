@@ -62,6 +62,11 @@ def settings_annotations():
         "margin": IntProperty(
             name="Margin", description="Packing and bake margin in pixels of the new image",
             default=DEFAULTS.margin, min=0, max=64),
+        "keep_stacks": BoolProperty(
+            name="Keep Stacked Islands",
+            description=("Islands that share texels in the input (mirrored halves, repeated parts) stay stacked "
+                         "and pack as one, so the new images hold those texels once"),
+            default=DEFAULTS.keep_stacks),
         "workers": IntProperty(
             name="Workers", description="Worker processes for the triangle-wise stage (0: one per core)",
             default=DEFAULTS.workers, min=0, max=256),

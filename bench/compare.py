@@ -51,7 +51,7 @@ import numpy as np
 
 METHODS = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSP", "SSPOP", "ours", "ours_luma",
            "ours_rotation", "ours_common", "ours_identity", "paper", "ours_no_texel_floor", "ours_no_signal_blend",
-           "ours_no_weight_floor", "ours_no_fold_restore", "downscale")
+           "ours_no_weight_floor", "ours_no_fold_restore", "ours_unstacked", "downscale")
 SHADED_ONLY = ("downscale",)
 """Methods measured only with ``--shaded`` (see the module docstring)."""
 SIZING = {"downscale": "memory"}
@@ -65,14 +65,16 @@ OURS_VARIANTS = {"ours": {}, "ours_luma": {}, "ours_common": {"formulation": "co
                  "ours_identity": {"weights": "identity"}, "ours_rotation": {"rotation_scale": 1.0},
                  "ours_no_texel_floor": {"min_texels": 0.0}, "ours_no_signal_blend": {"signal_weight": 0.0},
                  "ours_no_weight_floor": {"weight_floor": 0.0}, "ours_no_fold_restore": {"fold_tolerance": 1.0},
+                 "ours_unstacked": {"keep_stacks": False},
                  "paper": {"min_texels": 0.0, "signal_weight": 0.0, "weight_floor": 0.0, "rotation_scale": 1.0}}
 """Keyword arguments of ``bridge.baselines.perceptual_uv`` for ours, ``ours_luma`` (ours on the base colour's luma
 alone, :data:`LOSS_MAPS`), its Fig. 17 ablations, ours without each of the constants the project added
 (``MIN_TEXELS``, ``SIGNAL_WEIGHT``, ``STRETCH_WEIGHT_FLOOR``; a fold tolerance of 1 restores no chart, since a
-shared-area fraction cannot grow by more than 1), and ``paper``: the paper as written, i.e. one fit of Eq. 19 with
-Eq. 17's weights unchanged (no texel floor, no signal-stretch blend, no weight floor) on the triangle-wise results
-of :data:`PAPER_TRIANGLES`, then the post-processing, packing and bake every method gets. Every one of them sees
-the maps :data:`LOSS_MAPS` gives it."""
+shared-area fraction cannot grow by more than 1), ours with every chart unstacked (``ours_unstacked``: charts that
+share texels in the input get texels of their own, :mod:`core.stacks`), and ``paper``: the paper as written, i.e.
+one fit of Eq. 19 with Eq. 17's weights unchanged (no texel floor, no signal-stretch blend, no weight floor) on the
+triangle-wise results of :data:`PAPER_TRIANGLES`, then the post-processing, packing and bake every method gets.
+Every one of them sees the maps :data:`LOSS_MAPS` gives it."""
 PAPER_TRIANGLES = {"formulation": "barrier", "max_screen_pixels": 64, "view_faces": "one_ring"}
 """The triangle-wise stage as written: the barrier form (Eq. 12-14) and App. A's fixed 64 px views of the
 one-ring."""
@@ -85,7 +87,8 @@ maps as their shading, data maps per channel), for the triangle-wise stage, the 
 the fits and the bound's fractions alike. ``ours_luma`` sees the base colour's luma alone (the paper's loss): on a
 material whose only varying map is the base colour it is ours, and ours' triangle-wise result is reused."""
 
-_PACKED = ("bridge.pack", "bridge.baselines:_check", "bridge.baselines:_pack", "bridge.baselines:_write",
+_PACKED = ("bridge.pack", "core.stacks", "bridge.baselines:_stacks", "bridge.baselines:_face_stack",
+           "bridge.baselines:_check", "bridge.baselines:_pack", "bridge.baselines:_write",
            "bridge.baselines:_texture", "bridge.baselines:_texture_image", "bridge.baselines:PACK_MARGIN_PIXELS")
 _FINISHED = _PACKED + ("core.charts", "core.overlap", "core.meshwise", "core.chartfit:finish_charts",
                        "bridge.baselines:_finished", "bridge.baselines:_post_counts")

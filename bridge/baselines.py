@@ -1,12 +1,13 @@
 """Baseline UV maps for the comparisons of paper Sec. 5.2, each a new UV map on the same objects with the input cuts.
 
-Every function adds one UV map (the input UV map, image, materials and mesh stay as they were; Blender's
-unwrap runs on temporary copies of the objects) and packs it with 90-degree rotations only
-(:func:`bridge.pack.pack_uv_layer`, DESIGN decision 7). Before packing, every method's charts get the same
-post-processing (:func:`core.chartfit.finish_charts`: folded charts keep their input layout, every chart is
-turned rigidly to its rotation targets), so that a comparison measures the methods and not whether they were
-given the fallbacks. The triangle-wise and mesh-wise stages of ours see what a run of the product sees: every map
-of the material (:func:`loss_planes`, :mod:`.material_copy`), not the base colour alone.
+Every function adds one UV map (the input UV map, image, materials and mesh stay as they were; Blender's unwrap runs
+on temporary copies of the objects) and packs it with 90-degree rotations only (:func:`bridge.pack.pack_uv_layer`,
+DESIGN decision 7). Before packing, every method's charts get the same post-processing
+(:func:`core.chartfit.finish_charts`: folded charts keep their input layout, charts that share texels in the input
+stay stacked (:mod:`core.stacks`) and pack as one island, every chart is turned rigidly to its rotation targets), so
+that a comparison measures the methods and not whether they were given the fallbacks. The triangle-wise and
+mesh-wise stages of ours see what a run of the product sees: every map of the material (:func:`loss_planes`,
+:mod:`.material_copy`), not the base colour alone.
 
 References
 ----------
@@ -31,6 +32,7 @@ from ..core.meshwise import solve_meshwise
 from ..core.overlap import FOLD_TOLERANCE
 from ..core.result_cache import dataclass_from, save_arrays
 from ..core.ssp import solve_ssp, ssp_targets
+from ..core.stacks import stacked_charts, stacked_faces
 from ..core.trianglewise import losses_at, losses_of, optimize_triangles
 from ..core.trianglewise_result import MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult
 from .mesh_io import read_image, read_mesh, write_uv_layer
@@ -63,8 +65,19 @@ def _check(objects, source_uv, name):
     return objects
 
 
-def _pack(objects, name):
-    pack_uv_layer(objects, name, margin=PACK_MARGIN_PIXELS, resolution=reference_resolution(objects))
+def _pack(objects, name, face_stack=None):
+    pack_uv_layer(objects, name, margin=PACK_MARGIN_PIXELS, resolution=reference_resolution(objects),
+                  face_stack=face_stack)
+
+
+def _stacks(F, uv_in, keep_stacks=True):
+    """The input's charts and their stacks (:func:`core.stacks.stacked_charts`; None when not kept)."""
+    face_chart = uv_topology(F, uv_in).face_chart
+    return face_chart, (stacked_charts(uv_in, face_chart) if keep_stacks else None)
+
+
+def _face_stack(face_chart, stacks):
+    return None if stacks is None else stacked_faces(face_chart, stacks)
 
 
 def _write(objects, name, uv_all):
@@ -80,10 +93,10 @@ def _write(objects, name, uv_all):
 def _finished(objects, name, uv_in, F, uv_new, texture, start):
     """Post-process ``uv_new`` (:func:`finish_charts`), write it as UV map ``name`` and pack it; returns timings
     (s) and what the post-processing did."""
-    uv, restored, angles = finish_charts(uv_in, uv_new, uv_topology(F, uv_in).face_chart,
-                                         texel_scale=texture.shape[1::-1])
+    face_chart, stacks = _stacks(F, uv_in)
+    uv, restored, angles = finish_charts(uv_in, uv_new, face_chart, texel_scale=texture.shape[1::-1], stacks=stacks)
     _write(objects, name, uv)
-    _pack(objects, name)
+    _pack(objects, name, _face_stack(face_chart, stacks))
     return {"total": time.perf_counter() - start, **_post_counts(restored, angles)}
 
 
@@ -145,9 +158,9 @@ def repacked_input(objects, *, source_uv, name="InputRepacked"):
     """The input UV map copied to ``name`` and re-packed with 90-degree rotations. Returns timings (s)."""
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
-    _, _, uv = mesh_arrays(objects, source_uv)
+    _, F, uv = mesh_arrays(objects, source_uv)
     _write(objects, name, uv)
-    _pack(objects, name)
+    _pack(objects, name, _face_stack(*_stacks(F, uv)))
     return {"total": time.perf_counter() - start}
 
 
@@ -287,7 +300,7 @@ def _triangle_cache_key(V, F, uv, planes, **settings):
 
 def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", formulation="perceptual",
                   rotation_scale=None, workers=1, min_texels=MIN_TEXELS, signal_weight=SIGNAL_WEIGHT,
-                  weight_floor=STRETCH_WEIGHT_FLOOR, fold_tolerance=FOLD_TOLERANCE, planes=None):
+                  weight_floor=STRETCH_WEIGHT_FLOOR, fold_tolerance=FOLD_TOLERANCE, keep_stacks=True, planes=None):
     """Our mesh-wise stage on triangle-wise results ``triangles``, or one of the Fig. 17 ablations, packed.
 
     By default as in the pipeline (:func:`core.chartfit.fit_charts`): fits with and without Eq. 16's rotation
@@ -315,6 +328,9 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         ``floor`` of :meth:`~core.trianglewise_result.TrianglewiseResult.fit_weights`.
     fold_tolerance : float, optional
         Of :func:`core.overlap.restore_folded_charts`, for the default.
+    keep_stacks : bool, optional
+        Charts that share texels in the input stay stacked (:mod:`core.stacks`), as in the pipeline and for
+        every baseline; False gives every chart texels of its own.
     planes : core.loss_planes.PlaneStack, optional
         What the loss sees in the fit's targets, the choice between the fits and ``above_bound``: those
         ``triangles`` were optimized on; default :func:`loss_planes` of the objects (every map of the material,
@@ -337,10 +353,11 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     params = triangles.fit_targets(uv, planes, min_texels=min_texels, signal_targets=signal,
                                    signal_weight=signal_weight)
     fit_losses = None
+    face_chart, stacks = _stacks(F, uv, keep_stacks)
     if (weights, formulation, rotation_scale) == ("perceptual", "perceptual", None):
         fit = fit_charts(F, uv, params, *triangles.fit_weights(floor=weight_floor),
                          measure=lambda new_uv: losses_at(V, F, uv, planes, new_uv, workers=workers),
-                         texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance)
+                         texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance, stacks=stacks)
         uv_fit, post, fit_losses = fit.uv, _post_counts(fit.restored, fit.angles), fit.losses
     else:
         w_R, w_S = triangles.fit_weights(floor=weight_floor,
@@ -348,7 +365,8 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         result = solve_meshwise(F, uv, params, w_R, w_S, weights=weights, formulation=formulation,
                                 texel_scale=texture.shape[1::-1])
         uv_fit, restored, angles = finish_charts(uv, result.uv, result.topology.face_chart, alpha=params[:, 0],
-                                                 w_R=triangles.fit_weights()[0], texel_scale=texture.shape[1::-1])
+                                                 w_R=triangles.fit_weights()[0], texel_scale=texture.shape[1::-1],
+                                                 stacks=stacks)
         post = _post_counts(restored, angles)
     t_mesh = time.perf_counter() - start
     if fit_losses is None:
@@ -356,5 +374,5 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     bound = above_bound(uv, planes, triangles.epsilon, targets=losses_of(V, F, uv, planes, params, workers=workers),
                         fit=fit_losses)
     _write(objects, name, uv_fit)
-    _pack(objects, name)
+    _pack(objects, name, _face_stack(face_chart, stacks))
     return {"mesh": t_mesh, "total": time.perf_counter() - start, "above_bound": bound, **post}

@@ -6,7 +6,7 @@ import numpy as np
 __all__ = ["pack_uv_layer", "uv_operator_on_copies"]
 
 
-def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=None):
+def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=None, face_stack=None):
     """Pack the islands of the UV map ``uv_name`` of ``objects`` together into one square image, in place.
 
     The islands (charts: triangles joined by edges whose UVs agree) move by translations and quarter turns
@@ -26,6 +26,10 @@ def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=
     texels_per_unit : float, optional
         Pixels per unit of the UV map as it is: the islands keep this density and the image is as large as the
         packing needs. Exactly one of ``resolution`` and ``texels_per_unit`` is given.
+    face_stack : (m,) array_like of int, optional
+        Per triangle in the order of :func:`perceptual_uv.bridge.mesh_io.read_mesh` over ``objects``: a stack
+        number (:func:`perceptual_uv.core.stacks.stacked_faces`), the triangles of one stack moving as one
+        island, or -1 for a triangle that moves with its island. Default: every island alone.
 
     Returns
     -------
@@ -34,6 +38,7 @@ def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=
     """
     from ..core.charts import uv_topology
     from ..core.packing import pack_charts
+    from ..core.stacks import packing_islands
     from .mesh_io import read_mesh
 
     objects = list(objects)
@@ -44,8 +49,10 @@ def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=
     offsets = np.cumsum([0] + [len(a.V) for a in arrays])
     F = np.concatenate([a.F + offset for a, offset in zip(arrays, offsets)])
     uv = np.concatenate([a.uv for a in arrays])
-    packing = pack_charts(uv, uv_topology(F, uv).face_chart, margin=margin, resolution=resolution,
-                          texels_per_unit=texels_per_unit)
+    islands = uv_topology(F, uv).face_chart
+    if face_stack is not None:
+        islands = packing_islands(islands, face_stack)
+    packing = pack_charts(uv, islands, margin=margin, resolution=resolution, texels_per_unit=texels_per_unit)
     start = 0
     for obj, a in zip(objects, arrays):
         layer = obj.data.uv_layers[uv_name]

@@ -381,10 +381,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
     try:
         yield from _iter_import_stages(step)
+        from ..core.charts import uv_topology
         from ..core.chartfit import iter_fit_charts
         from ..core.loss import above_bound, iter_textured_triangles
         from ..core.result_cache import result_key
         from ..core.ssp import iter_ssp_targets
+        from ..core.stacks import packing_islands, stacked_charts, stacked_faces
         from ..core.trianglewise import iter_losses_at, iter_losses_of, iter_optimize_triangles
         from .bake import iter_bake_maps
 
@@ -402,11 +404,6 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         height, width = texture.shape[:2]
         m = len(F)
         reuse = texel_cost.texel_reuse(uv_in, (height, width))
-        if reuse > SHARED_TEXELS:
-            notes.append(f"the input's UV islands use each texel they cover {reuse:.1f} times on average (tiled UVs or "
-                         "islands laid on the same texels); the new UV map gives every triangle texels of its own, so "
-                         f"it needs about {reuse:.1f} times the input's image memory for the input's texel density: "
-                         "at a lower cost, downscaling the input's images may keep more detail")
         per_object = [mesh.object_index == index for index in range(len(objects))]
 
         yield step("read", 5, _READ_STEPS, "Looking for the triangle-wise results of an earlier run")
@@ -472,12 +469,22 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                                       workers=settings.workers, scheduler=settings.scheduler)
             return losses
 
-        stage = iter_fit_charts(F, uv_in, params, w_R, w_S, measure=measure, texel_scale=(width, height))
+        yield step("mesh", 0, 1, "Finding the UV islands that share texels")
+        input_charts = uv_topology(F, uv_in).face_chart
+        stacks = stacked_charts(uv_in, input_charts) if settings.keep_stacks else None
+        stage = iter_fit_charts(F, uv_in, params, w_R, w_S, measure=measure, texel_scale=(width, height),
+                                stacks=stacks)
         meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit, with and without rotation targets", clock, step)
         uv_fit, restored, losses = meshwise.uv, meshwise.restored, meshwise.losses
         if restored.size:
             notes.append(f"{restored.size} UV island(s) folded over themselves in the mesh-wise fit (it is locally "
                          "injective only) and keep their input layout, scaled to their new size")
+        stacked = 0 if stacks is None else int(np.count_nonzero(np.bincount(stacks)[stacks] > 1))
+        if stacked:
+            notes.append(f"{stacked} UV islands share texels in the input ({len(np.unique(stacks))} stacks and single "
+                         "islands in all) and stay stacked: each stack keeps its input layout, scaled to the size the "
+                         "fit gives its islands together, and packs as one island (--unstack, or Keep Stacked "
+                         "Islands off, gives every island texels of its own)")
         times["mesh"] = time.perf_counter() - clock
 
         yield step("pack", 0, 1, "Packing islands")
@@ -486,7 +493,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         # first map's (the loss image's). With the texel cost (Eq. 20-21) the packing sets the side.
         by_memory = settings.resolution is None and settings.cost_measure == "memory"
         sides_by_memory = [_memory_side(record, settings) for record in records] if by_memory else None
-        packing = yield from _pack(mesh.uv, uv_fit, meshwise.topology.face_chart, (width, height), settings,
+        islands = input_charts if stacks is None else packing_islands(input_charts,
+                                                                      stacked_faces(input_charts, stacks))
+        packing = yield from _pack(mesh.uv, uv_fit, islands, (width, height), settings,
                                    step, resolution=sides_by_memory[0] if by_memory else None)
         # What the UV map stores (float32), so the report's figures are those of the saved map.
         uv_out = packing.uv.astype(np.float32).astype(np.float64)
@@ -495,6 +504,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         for obj, rows in zip(objects, per_object):
             write_uv_layer(obj, uv_name, uv_out[rows], mesh.tri_loops[rows])
             created.uv_layers.append((obj.data, uv_name))
+        reuse_out = texel_cost.texel_reuse(uv_out, (resolution, resolution))
+        if reuse > SHARED_TEXELS * reuse_out:
+            notes.append(f"the input's UV islands use each texel they cover {reuse:.1f} times on average (tiled UVs or "
+                         f"islands laid on the same texels), the new UV map's {reuse_out:.1f} times: it needs about "
+                         f"{reuse / reuse_out:.1f} times the input's image memory for the input's texel density, and "
+                         "at a lower cost, downscaling the input's images may keep more detail")
         if coverage < LOW_COVERAGE:
             notes.append(f"the packed UV islands cover {coverage:.0%} of the {resolution} x {resolution} image: it "
                          f"holds {1 / coverage:.0f} times the texels the islands use. An island far longer than it "
@@ -587,10 +602,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "relative_cost": reference_cost,
             "image_coverage": float(coverage),
             "input_texel_reuse": float(reuse),
+            "texel_reuse": float(reuse_out),
             "times_s": {key: round(value, 3) for key, value in times.items()},
             "flipped_triangles": int(meshwise.flipped),
             "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),
             "restored_charts": int(restored.size),
+            "stacked_charts": stacked,
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
             "textured_above_bound": above_bound(uv_in[faces], planes, settings.epsilon, textured=textured.any(axis=0),
                                                 targets=target_losses, fit=losses[faces]),

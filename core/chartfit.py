@@ -22,6 +22,7 @@ from .charts import UVTopology, uv_topology
 from .meshwise import flipped_triangles, iter_solve_meshwise, orient_charts
 from .overlap import FOLD_TOLERANCE, restore_folded_charts, shared_area_fractions
 from .progress import run_generator
+from .stacks import restack_charts
 
 __all__ = ["ChartFit", "finish_charts", "iter_fit_charts", "fit_charts"]
 
@@ -61,13 +62,14 @@ class ChartFit:
 
 
 def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scale=(1.0, 1.0),
-                  fold_tolerance=FOLD_TOLERANCE):
-    """The post-processing of every method's charts before packing: the fold restore, then the chart turn.
+                  fold_tolerance=FOLD_TOLERANCE, stacks=None):
+    """The post-processing of every method's charts before packing: the fold restore, the stacks, the chart turn.
 
     Folded charts get their input layout back at their new size (:func:`.overlap.restore_folded_charts`);
-    then every chart is turned rigidly to the angle that best meets its rotation targets
-    (:func:`.meshwise.orient_charts`, which changes no stretch and no fold). These are the two steps
-    :func:`fit_charts` applies to each of its fits.
+    charts that share texels in the input get their input layout back together, at their new size
+    (:func:`.stacks.restack_charts`); then every chart, and every stack as one, is turned rigidly to the angle
+    that best meets its rotation targets (:func:`.meshwise.orient_charts`, which changes no stretch and no
+    fold). These are the steps :func:`fit_charts` applies to each of its fits.
 
     Parameters
     ----------
@@ -85,14 +87,16 @@ def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scal
         Texels per UV unit of the input texture along u and v.
     fold_tolerance : float, optional
         Of :func:`.overlap.restore_folded_charts`.
+    stacks : (n_charts,) array_like of int, optional
+        Stack of every chart (:func:`.stacks.stacked_charts` of ``uv_in``); without it no chart is stacked.
 
     Returns
     -------
     uv : (m, 3, 2) float64 ndarray
     restored : (k,) int64 ndarray
-        Charts given their input layout.
+        Charts given their input layout because they folded.
     angles : (n_charts,) float64 ndarray
-        The turn of every chart.
+        The turn of every chart (the same for the charts of a stack).
 
     Notes
     -----
@@ -112,12 +116,17 @@ def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scal
     m = len(uv_in)
     alpha = np.zeros(m) if alpha is None else alpha
     w_R = np.ones(m) if w_R is None else w_R
-    uv, angles = orient_charts(uv_in, uv, face_chart, alpha, w_R, texel_scale=texel_scale)
-    return uv, restored, angles
+    if stacks is None:
+        uv, angles = orient_charts(uv_in, uv, face_chart, alpha, w_R, texel_scale=texel_scale)
+        return uv, restored, angles
+    stacks = np.asarray(stacks, dtype=np.int64)
+    uv = restack_charts(uv_in, uv, face_chart, stacks)
+    uv, angles = orient_charts(uv_in, uv, stacks[face_chart], alpha, w_R, texel_scale=texel_scale)
+    return uv, restored, angles[stacks]
 
 
 def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100,
-                    fold_tolerance=FOLD_TOLERANCE):
+                    fold_tolerance=FOLD_TOLERANCE, stacks=None):
     """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`.
 
     It yields once the charts are found; per fit after the solver's set-up and every iteration, once more before
@@ -150,7 +159,8 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
             yield index * steps + done, 2 * steps
         yield (index + 1) * steps - 1, 2 * steps  # the fold restore and the turns are a step of their own
         fitted, restored, angles = finish_charts(uv, fit.uv, chart, alpha=targets[:, 0], w_R=w_R,
-                                                 texel_scale=texel_scale, fold_tolerance=fold_tolerance)
+                                                 texel_scale=texel_scale, fold_tolerance=fold_tolerance,
+                                                 stacks=stacks)
         yield (index + 1) * steps - 1, 2 * steps  # and so is the start of the measurement
         measured = measure(fitted)
         if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs
@@ -169,9 +179,11 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
 
     (plain, plain_uv, plain_restored, plain_angles, plain_losses), \
         (turned, turned_uv, turned_restored, turned_angles, turned_losses) = candidates
-    n = topology.n_charts
-    rotation_fit = ((np.bincount(chart, turned_losses, n) < np.bincount(chart, plain_losses, n))
-                    & (shared_area_fractions(turned_uv, chart, n) <= shared_area_fractions(plain_uv, chart, n)))
+    # A stack chooses as one: its charts share texels, so they must keep the same layout.
+    unit = np.arange(topology.n_charts) if stacks is None else np.asarray(stacks, dtype=np.int64)
+    group, n = unit[chart], int(unit.max()) + 1
+    rotation_fit = ((np.bincount(group, turned_losses, n) < np.bincount(group, plain_losses, n))
+                    & (shared_area_fractions(turned_uv, group, n) <= shared_area_fractions(plain_uv, group, n)))[unit]
     take = rotation_fit[chart]
     fitted = np.where(take[:, None, None], turned_uv, plain_uv)
     restored = np.union1d(plain_restored[~rotation_fit[plain_restored]],
@@ -183,7 +195,7 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
 
 
 def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100,
-               fold_tolerance=FOLD_TOLERANCE, progress=None):
+               fold_tolerance=FOLD_TOLERANCE, stacks=None, progress=None):
     """Fit the mesh-wise stage with and without Eq. 16's rotation terms; each chart keeps the better fit.
 
     Parameters
@@ -212,6 +224,10 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
     fold_tolerance : float, optional
         Of :func:`.overlap.restore_folded_charts`: the growth of a chart's self-shared area fraction above
         which it gets its input layout back.
+    stacks : (n_charts,) array_like of int, optional
+        Stack of every chart of the input (:func:`.stacks.stacked_charts`): the charts of a stack get their
+        input layout back together in both fits (:func:`finish_charts`) and keep the same fit. Without it no
+        chart is stacked.
     progress : callable, optional
         Called as ``progress(done, total)``.
 
@@ -232,4 +248,5 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
     Sun et al. 2022, Eq. 16-19 (the fit), Sec. 4.1 (E), Eq. 17 (``w_R``), Sec. 4.2 ("Bijectivity").
     """
     return run_generator(iter_fit_charts(F, uv, targets, w_R, w_S, measure=measure, texel_scale=texel_scale,
-                                         max_iterations=max_iterations, fold_tolerance=fold_tolerance), progress)
+                                         max_iterations=max_iterations, fold_tolerance=fold_tolerance, stacks=stacks),
+                         progress)

@@ -53,6 +53,11 @@ class OptimizeSettings:
         so this bounds the triangle-wise stage on large textures, at the price of views coarser than the texels.
     margin : int
         Gap between packed islands and bake margin, in pixels of the new image.
+    keep_stacks : bool
+        UV islands that share texels in the input (mirrored halves, repeated parts, islands laid on each other)
+        stay stacked: they keep their input layout together, scaled to the size the method gives them, and
+        pack as one island (``core.stacks``), so the new images hold their texels once. Off, every island gets
+        texels of its own.
     workers : int
         Worker processes for the triangle-wise stage; 0 means one per core.
     seed : int
@@ -94,6 +99,7 @@ class OptimizeSettings:
     screen_pixels: int = 64
     max_screen_pixels: int = 256
     margin: int = 4
+    keep_stacks: bool = True
     workers: int = 0
     seed: int = 0
     uv_map_name: str = "PerceptualUV"

@@ -346,29 +346,51 @@ def test_the_sidebar_shows_the_measure_and_a_cost_per_kind_of_map(registered):
     assert ("label", {"text": "Per-Map Costs"}) in drawn
 
 
-def test_an_input_that_lays_islands_on_the_same_texels_is_reported(registered, spot_obj, tmp_path):
+def test_islands_laid_on_the_same_texels_stay_stacked_unless_unstacked(registered, spot_obj, tmp_path):
     """The patch's second half of triangles laid on the UVs of its first half: every covered texel is used about
-    twice, so the new UV map, which gives every triangle its own texels, needs about twice the memory for the
-    input's texel density; the report says so. The patch's own UVs share nothing (reuse about 1, no note)."""
+    twice. By default the two halves stay stacked (core.stacks): the new UV map lays them on the same texels
+    too, its texel reuse is the input's, and the report says so. Unstacked, every triangle gets texels of its own
+    (reuse about 1), and the report says the new map needs about twice the memory for the input's texel
+    density. The patch's own UVs share nothing (reuse about 1, no note)."""
     from perceptual_uv.bridge.pipeline import run_to_end
 
     obj = spot_patch(spot_obj, above=1.0)
     report = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path / "a"))).report
     assert abs(report["input_texel_reuse"] - 1.0) < 0.05
-    assert not [note for note in report["notes"] if "use each texel" in note]
+    assert report["stacked_charts"] == 0
+    assert not [note for note in report["notes"] if "use each texel" in note or "stay stacked" in note]
 
-    obj = spot_patch(spot_obj, above=1.0)
-    mesh = obj.data
-    uv = np.empty(2 * len(mesh.loops))
-    mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv)
-    uv = uv.reshape(-1, 2)
-    polygons = list(mesh.polygons)
-    half = len(polygons) // 2
-    for first, second in zip(polygons[:half], polygons[half:2 * half]):
-        assert first.loop_total == second.loop_total == 3
-        uv[second.loop_start:second.loop_start + 3] = uv[first.loop_start:first.loop_start + 3]
-    mesh.uv_layers["UVMap"].uv.foreach_set("vector", uv.ravel())
-    report = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path / "b"))).report
+    def laid_on_itself():
+        obj = spot_patch(spot_obj, above=1.0)
+        mesh = obj.data
+        uv = np.empty(2 * len(mesh.loops))
+        mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv)
+        uv = uv.reshape(-1, 2)
+        polygons = list(mesh.polygons)
+        half = len(polygons) // 2
+        for first, second in zip(polygons[:half], polygons[half:2 * half]):
+            assert first.loop_total == second.loop_total == 3
+            uv[second.loop_start:second.loop_start + 3] = uv[first.loop_start:first.loop_start + 3]
+        mesh.uv_layers["UVMap"].uv.foreach_set("vector", uv.ravel())
+        return obj, half
+
+    obj, half = laid_on_itself()
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path / "b")))
+    report = result.report
     assert 1.9 < report["input_texel_reuse"] < 2.1
+    assert abs(report["texel_reuse"] - report["input_texel_reuse"]) < 0.05 * report["input_texel_reuse"]
+    assert report["stacked_charts"] >= 2
+    assert len([note for note in report["notes"] if "stay stacked" in note]) == 1
+    assert not [note for note in report["notes"] if "use each texel" in note]
+    new_uv = np.empty(2 * len(obj.data.loops))
+    obj.data.uv_layers[result.uv_map].uv.foreach_get("vector", new_uv)
+    new_uv = new_uv.reshape(-1, 3, 2)  # every polygon of the patch is a triangle
+    np.testing.assert_allclose(new_uv[half:2 * half], new_uv[:half], atol=1e-6)
+
+    obj, _ = laid_on_itself()
+    settings = OptimizeSettings(**FAST, keep_stacks=False)
+    report = run_to_end(optimize_objects([obj], settings, output_dir=str(tmp_path / "c"))).report
+    assert report["stacked_charts"] == 0 and report["texel_reuse"] < 1.1
     notes = [note for note in report["notes"] if "use each texel" in note]
     assert len(notes) == 1 and f"{report['input_texel_reuse']:.1f} times on average" in notes[0]
+    assert f"the new UV map's {report['texel_reuse']:.1f} times" in notes[0]
