@@ -499,12 +499,14 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                    step, resolution=sides_by_memory[0] if by_memory else None)
         # What the UV map stores (float32), so the report's figures are those of the saved map.
         uv_out = packing.uv.astype(np.float32).astype(np.float64)
-        resolution, coverage = packing.resolution, texel_cost.uv_area(uv_out)
+        resolution = packing.resolution
+        reuse_out = texel_cost.texel_reuse(uv_out, (resolution, resolution))
+        # The islands' UV area; stacked islands cover their texels once, so with stacks the texels they cover.
+        coverage = texel_cost.uv_area(uv_out) / (reuse_out if stacked else 1.0)
         uv_name = _unique_uv_name(objects, settings.uv_map_name)
         for obj, rows in zip(objects, per_object):
             write_uv_layer(obj, uv_name, uv_out[rows], mesh.tri_loops[rows])
             created.uv_layers.append((obj.data, uv_name))
-        reuse_out = texel_cost.texel_reuse(uv_out, (resolution, resolution))
         if reuse > SHARED_TEXELS * reuse_out:
             notes.append(f"the input's UV islands use each texel they cover {reuse:.1f} times on average (tiled UVs or "
                          f"islands laid on the same texels), the new UV map's {reuse_out:.1f} times: it needs about "

@@ -20,8 +20,8 @@ import numpy as np
 
 from .charts import UVTopology, uv_topology
 from .meshwise import flipped_triangles, iter_solve_meshwise, orient_charts
-from .overlap import FOLD_TOLERANCE, restore_folded_charts, shared_area_fractions
-from .progress import run_generator
+from .overlap import FOLD_TOLERANCE, iter_restore_folded_charts, shared_area_fractions
+from .progress import report_while_waiting, run_generator
 from .stacks import restack_charts
 
 __all__ = ["ChartFit", "finish_charts", "iter_fit_charts", "fit_charts"]
@@ -110,9 +110,16 @@ def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scal
     With the packer's quarter turns (DESIGN decision 7), a chart at any multiple of 90 degrees to the input is
     on the grid, which is the symmetry ``orient_charts`` minimizes over.
     """
+    return run_generator(_iter_finish_charts(uv_in, uv_new, face_chart, alpha=alpha, w_R=w_R,
+                                             texel_scale=texel_scale, fold_tolerance=fold_tolerance, stacks=stacks))
+
+
+def _iter_finish_charts(uv_in, uv_new, face_chart, *, alpha, w_R, texel_scale, fold_tolerance, stacks):
+    """:func:`finish_charts` as a generator that yields None between its whole-mesh parts (each a few tenths of a
+    second on 40,000 faces), so that :func:`iter_fit_charts` hands control back between them."""
     uv_in = np.asarray(uv_in, dtype=np.float64)
     face_chart = np.asarray(face_chart)
-    uv, restored = restore_folded_charts(uv_in, uv_new, face_chart, tolerance=fold_tolerance)
+    uv, restored = yield from iter_restore_folded_charts(uv_in, uv_new, face_chart, tolerance=fold_tolerance)
     m = len(uv_in)
     alpha = np.zeros(m) if alpha is None else alpha
     w_R = np.ones(m) if w_R is None else w_R
@@ -121,6 +128,7 @@ def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scal
         return uv, restored, angles
     stacks = np.asarray(stacks, dtype=np.int64)
     uv = restack_charts(uv_in, uv, face_chart, stacks)
+    yield
     uv, angles = orient_charts(uv_in, uv, stacks[face_chart], alpha, w_R, texel_scale=texel_scale)
     return uv, restored, angles[stacks]
 
@@ -129,12 +137,12 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                     fold_tolerance=FOLD_TOLERANCE, stacks=None):
     """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`.
 
-    It yields once the charts are found; per fit after the solver's set-up and every iteration, once more before
-    and once after the fold restore and the
-    chart turns (:func:`finish_charts`, whole-mesh work that would otherwise share a step with the solver's last
-    iteration and the measurement's start), while ``measure`` runs if it is a generator, and when the fit's
-    losses are in; choosing the charts' fits is the step after the last yield. A modal operator that calls
-    ``next`` once per timer tick thus never waits for more than one of these parts at a time.
+    It yields once the charts are found; per fit after the solver's set-up and every iteration, before, between
+    and after the parts of the post-processing (:func:`finish_charts`: the fold restore's two shared areas, the
+    stacks, the chart turns; whole-mesh work that would otherwise share a step with the solver's last iteration
+    and the measurement's start), while ``measure`` runs if it is a generator, and when the fit's losses are in;
+    then once between the two fits' shared areas that the choice compares. A modal operator that calls ``next``
+    once per timer tick thus never waits for more than one of these parts at a time.
     """
     F = np.asarray(F)
     uv = np.asarray(uv, dtype=np.float64)
@@ -157,10 +165,10 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                 fit = finished.value
                 break
             yield index * steps + done, 2 * steps
-        yield (index + 1) * steps - 1, 2 * steps  # the fold restore and the turns are a step of their own
-        fitted, restored, angles = finish_charts(uv, fit.uv, chart, alpha=targets[:, 0], w_R=w_R,
-                                                 texel_scale=texel_scale, fold_tolerance=fold_tolerance,
-                                                 stacks=stacks)
+        yield (index + 1) * steps - 1, 2 * steps  # the fold restore, the stacks and the turns are steps of their own
+        finishing = _iter_finish_charts(uv, fit.uv, chart, alpha=targets[:, 0], w_R=w_R, texel_scale=texel_scale,
+                                        fold_tolerance=fold_tolerance, stacks=stacks)
+        fitted, restored, angles = yield from report_while_waiting(finishing, ((index + 1) * steps - 1, 2 * steps))
         yield (index + 1) * steps - 1, 2 * steps  # and so is the start of the measurement
         measured = measure(fitted)
         if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs
@@ -182,8 +190,10 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     # A stack chooses as one: its charts share texels, so they must keep the same layout.
     unit = np.arange(topology.n_charts) if stacks is None else np.asarray(stacks, dtype=np.int64)
     group, n = unit[chart], int(unit.max()) + 1
+    turned_shared = shared_area_fractions(turned_uv, group, n)
+    yield 2 * steps, 2 * steps  # the two fits' shared areas are a step each
     rotation_fit = ((np.bincount(group, turned_losses, n) < np.bincount(group, plain_losses, n))
-                    & (shared_area_fractions(turned_uv, group, n) <= shared_area_fractions(plain_uv, group, n)))[unit]
+                    & (turned_shared <= shared_area_fractions(plain_uv, group, n)))[unit]
     take = rotation_fit[chart]
     fitted = np.where(take[:, None, None], turned_uv, plain_uv)
     restored = np.union1d(plain_restored[~rotation_fit[plain_restored]],

@@ -62,23 +62,44 @@ def one_ring_faces(F, *, V=None):
     m = len(F)
     if m == 0:
         return np.zeros(1, np.int64), np.zeros(0, np.int64)
-    # (face, vertex) incidences, then (face, neighbour face) pairs through each shared vertex.
+    # The faces of every vertex (ascending: a stable sort of the corners), then each face's through its corners.
     corner_vertex = F.reshape(-1)
-    corner_face = np.repeat(np.arange(m, dtype=np.int64), 3)
     order = np.argsort(corner_vertex, kind="stable")
-    sorted_vertex = corner_vertex[order]
-    sorted_face = corner_face[order]
-    starts = np.searchsorted(sorted_vertex, corner_vertex, side="left")
-    stops = np.searchsorted(sorted_vertex, corner_vertex, side="right")
-    counts = stops - starts
-    pair_face = np.repeat(corner_face, counts)
-    idx = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
-    pair_neighbour = sorted_face[idx]
-    key = np.unique(pair_face * m + pair_neighbour)
-    faces, neighbours = np.divmod(key, m)
+    vertex_offsets = np.searchsorted(corner_vertex[order], np.arange(int(corner_vertex.max()) + 2))
+    return _one_ring_kernel(np.ascontiguousarray(F), vertex_offsets.astype(np.int64), order // 3)
+
+
+@njit
+def _one_ring_kernel(F, vertex_offsets, vertex_faces):
+    """Numba: :func:`one_ring_faces` from the faces of every vertex, one face at a time (a stamp per face marks
+    the neighbours already listed), without sorting all (face, neighbour) pairs together."""
+    m = F.shape[0]
+    stamp = np.full(m, -1, np.int64)
     offsets = np.zeros(m + 1, np.int64)
-    np.add.at(offsets, faces + 1, 1)
-    return np.cumsum(offsets), neighbours.astype(np.int64)
+    for f in range(m):
+        count = 0
+        for c in range(3):
+            v = F[f, c]
+            for k in range(vertex_offsets[v], vertex_offsets[v + 1]):
+                g = vertex_faces[k]
+                if stamp[g] != f:
+                    stamp[g] = f
+                    count += 1
+        offsets[f + 1] = offsets[f] + count
+    neighbours = np.empty(offsets[m], np.int64)
+    stamp[:] = -1
+    for f in range(m):
+        at = offsets[f]
+        for c in range(3):
+            v = F[f, c]
+            for k in range(vertex_offsets[v], vertex_offsets[v + 1]):
+                g = vertex_faces[k]
+                if stamp[g] != f:
+                    stamp[g] = f
+                    neighbours[at] = g
+                    at += 1
+        neighbours[offsets[f]:offsets[f + 1]].sort()
+    return offsets, neighbours
 
 
 def window_faces(V, F, adjacency, face, *, origin, right, up, normal, bounds, limit=WINDOW_FACE_LIMIT):

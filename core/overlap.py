@@ -18,9 +18,10 @@ import numpy as np
 from ._jit import njit
 from .charts import signed_uv_areas
 from .cost import uv_area
+from .progress import run_generator
 
 __all__ = ["OverlapCount", "overlapping_pairs", "overlap_areas", "count_overlaps", "triangles_overlap",
-           "shared_area_fractions", "restore_folded_charts", "FOLD_TOLERANCE"]
+           "shared_area_fractions", "restore_folded_charts", "iter_restore_folded_charts", "FOLD_TOLERANCE"]
 
 #: A chart counts as folded when the UV area its triangles share grows by more than this fraction of its area.
 FOLD_TOLERANCE = 1e-3
@@ -356,6 +357,14 @@ def shared_area_fractions(uv, face_chart, n_charts):
 def restore_folded_charts(uv_in, uv_new, face_chart, *, tolerance=FOLD_TOLERANCE):
     """Give the charts that fold over themselves in ``uv_new`` their input layout back, at their new size.
 
+    :func:`iter_restore_folded_charts` run to its end; see it for the parameters and the result.
+    """
+    return run_generator(iter_restore_folded_charts(uv_in, uv_new, face_chart, tolerance=tolerance))
+
+
+def iter_restore_folded_charts(uv_in, uv_new, face_chart, *, tolerance=FOLD_TOLERANCE):
+    """Generator form of :func:`restore_folded_charts`: yields None after each mesh's shared area, returns its result.
+
     Parameters
     ----------
     uv_in : (m, 3, 2) array_like of float
@@ -404,8 +413,10 @@ def restore_folded_charts(uv_in, uv_new, face_chart, *, tolerance=FOLD_TOLERANCE
     if not (np.isfinite(tolerance) and tolerance >= 0):
         raise ValueError(f"tolerance must be a non-negative number, got {tolerance}")
     n_charts = int(face_chart.max()) + 1 if m else 0
-    growth = (shared_area_fractions(uv_new, face_chart, n_charts)
-              - shared_area_fractions(uv_in, face_chart, n_charts))
+    shared_new = shared_area_fractions(uv_new, face_chart, n_charts)
+    yield
+    growth = shared_new - shared_area_fractions(uv_in, face_chart, n_charts)
+    yield
     restored = np.flatnonzero(growth > tolerance)
     uv = uv_new.copy()
     for chart in restored:

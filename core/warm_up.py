@@ -1,12 +1,12 @@
 """Load the compiled kernels that a run executes in the calling process, before the run needs them.
 
 The triangle-wise stage and the loss passes run in worker processes; the rest of a run (the fit's targets, the
-mesh-wise fit, the fold restore, the stacks, the packing, the bake's seam texels) runs numba kernels in the process
-that drives the run: in Blender, its interface thread. numba compiles each kernel on its first call after an install
-or update (about 40 s in all on this project's machine, the longest single kernel 22 s) and loads it from its cache
-later (about 0.2 s for the first kernel of a process, milliseconds for the next). :func:`load_kernels` calls each of
-them once on a tiny input, with the argument types a run gives them, so that a caller can do it in a thread while
-its interface stays live (``bridge.pipeline`` does, while it imports the stages).
+mesh-wise fit, the fold restore, the stacks, the views' one-rings, the packing, the bake's seam texels) runs numba
+kernels in the process that drives the run: in Blender, its interface thread. numba compiles each kernel on its
+first call after an install or update (about 40 s in all on this project's machine, the longest single kernel 22 s)
+and loads it from its cache later (about 0.2 s for the first kernel of a process, milliseconds for the next).
+:func:`load_kernels` calls each of them once on a tiny input, with the argument types a run gives them, so that a
+caller can do it in a thread while its interface stays live (``bridge.pipeline`` does, while it imports the stages).
 """
 import numpy as np
 
@@ -15,6 +15,7 @@ from .cost import texel_reuse
 from .footprint import footprint_texels
 from .loss import textured_triangles
 from .meshwise import solve_meshwise
+from .one_ring import one_ring_faces
 from .overlap import restore_folded_charts
 from .packing import pack_charts
 from .stacks import stacked_charts
@@ -41,6 +42,7 @@ def load_kernels():
     solve_meshwise(F, uv, targets, weights, weights, topology=topology, max_iterations=1)
     restore_folded_charts(uv, uv, topology.face_chart)
     stacked_charts(uv, topology.face_chart)
+    one_ring_faces(F)
     pack_charts(uv, topology.face_chart, margin=1, resolution=16)
     footprint_texels(uv, np.zeros((8, 8), dtype=bool))
     texel_reuse(uv, (8, 8))

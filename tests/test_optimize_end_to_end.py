@@ -386,6 +386,12 @@ def test_islands_laid_on_the_same_texels_stay_stacked_unless_unstacked(registere
     obj.data.uv_layers[result.uv_map].uv.foreach_get("vector", new_uv)
     new_uv = new_uv.reshape(-1, 3, 2)  # every polygon of the patch is a triangle
     np.testing.assert_allclose(new_uv[half:2 * half], new_uv[:half], atol=1e-6)
+    # The halves cover their texels once: the image's covered fraction is the UV area of one half (and of the
+    # rest of the patch, if any), counted in texels (within a few per cent at this size).
+    e1, e2 = new_uv[:, 1] - new_uv[:, 0], new_uv[:, 2] - new_uv[:, 0]
+    areas = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    once = areas.sum() - areas[half:2 * half].sum()
+    assert report["image_coverage"] == pytest.approx(once, rel=0.05)
 
     obj, _ = laid_on_itself()
     settings = OptimizeSettings(**FAST, keep_stacks=False)

@@ -121,20 +121,22 @@ def test_closing_the_stage_while_its_worker_pool_starts_stops_the_workers(monkey
     assert not set(multiprocessing.active_children()) - before
 
 
-def test_fit_charts_gives_the_chart_finish_a_step_of_its_own(monkeypatch):
-    # The fold restore and chart turns run on the whole mesh: neither the solver's last iteration nor the
-    # measurement's start may share their step.
+def test_fit_charts_gives_the_chart_finish_steps_of_its_own(monkeypatch):
+    # The fold restore (two shared areas), the stacks and the chart turns run on the whole mesh: neither the
+    # solver's last iteration nor the measurement's start may share their steps, nor may they share one.
     from perceptual_uv.core import chartfit
 
     V, F, uv = grid_mesh()
     targets = np.tile([0.1, 0.8, 0.7, 0.0], (8, 1))
     weights = np.full(8, 1e-3)
     events = []
-    finish = chartfit.finish_charts
+    finish = chartfit._iter_finish_charts
 
     def recorded_finish(*args, **kwargs):
         events.append("finish")
-        return finish(*args, **kwargs)
+        result = yield from finish(*args, **kwargs)
+        events.append("finished")
+        return result
 
     def measure(new_uv):
         events.append("measure")
@@ -147,16 +149,19 @@ def test_fit_charts_gives_the_chart_finish_a_step_of_its_own(monkeypatch):
         events.append("solved")
         return result
 
-    monkeypatch.setattr(chartfit, "finish_charts", recorded_finish)
+    monkeypatch.setattr(chartfit, "_iter_finish_charts", recorded_finish)
     monkeypatch.setattr(chartfit, "iter_solve_meshwise", recorded_solve)
     fit = run_generator(iter_fit_charts(F, uv, targets, weights, weights, measure=measure, max_iterations=3),
                         lambda *step: events.append(step))
     steps = 3 + 1
     for index in range(2):
         at = [n for n, event in enumerate(events) if event == "finish"][index]
+        end = [n for n, event in enumerate(events) if event == "finished"][index]
         assert events[at - 2:at] == ["solved", ((index + 1) * steps - 1, 2 * steps)]  # a yield before the finish
-        assert events[at + 1] == ((index + 1) * steps - 1, 2 * steps)  # and one between it and the measurement
-        assert events[at + 2] == "measure"
+        # the fold restore yields after each of its two shared areas (no stacks here: the turns follow)
+        assert events[at + 1:end] == [((index + 1) * steps - 1, 2 * steps)] * 2
+        assert events[end + 1] == ((index + 1) * steps - 1, 2 * steps)  # and one between it and the measurement
+        assert events[end + 2] == "measure"
     assert events[-1] == (2 * steps, 2 * steps)
     np.testing.assert_array_equal(fit.uv, fit_charts(F, uv, targets, weights, weights, measure=measure,
                                                      max_iterations=3).uv)
