@@ -62,44 +62,39 @@ def one_ring_faces(F, *, V=None):
     m = len(F)
     if m == 0:
         return np.zeros(1, np.int64), np.zeros(0, np.int64)
-    # The faces of every vertex (ascending: a stable sort of the corners), then each face's through its corners.
+    # The faces of every vertex (ascending: a stable sort of the corners), then each face's through its corners,
+    # each face's list first given room for every face of its corners (repeats included), then compacted.
     corner_vertex = F.reshape(-1)
     order = np.argsort(corner_vertex, kind="stable")
     vertex_offsets = np.searchsorted(corner_vertex[order], np.arange(int(corner_vertex.max()) + 2))
-    return _one_ring_kernel(np.ascontiguousarray(F), vertex_offsets.astype(np.int64), order // 3)
+    room = np.diff(vertex_offsets)[F].sum(axis=1)
+    starts = np.concatenate([[0], np.cumsum(room)])
+    counts, listed = _one_ring_kernel(np.ascontiguousarray(F), vertex_offsets.astype(np.int64), order // 3, starts)
+    used = np.arange(starts[-1]) - np.repeat(starts[:-1], room) < np.repeat(counts, room)
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), listed[used]
 
 
 @njit
-def _one_ring_kernel(F, vertex_offsets, vertex_faces):
-    """Numba: :func:`one_ring_faces` from the faces of every vertex, one face at a time (a stamp per face marks
-    the neighbours already listed), without sorting all (face, neighbour) pairs together."""
+def _one_ring_kernel(F, vertex_offsets, vertex_faces, starts):
+    """Numba: every face's one-ring, sorted, at ``starts[f]`` of one array, and its length; a stamp per face marks
+    the neighbours already listed, so no global sort of all (face, neighbour) pairs is needed."""
     m = F.shape[0]
     stamp = np.full(m, -1, np.int64)
-    offsets = np.zeros(m + 1, np.int64)
+    counts = np.zeros(m, np.int64)
+    listed = np.empty(starts[m], np.int64)
     for f in range(m):
-        count = 0
+        at = starts[f]
         for c in range(3):
             v = F[f, c]
             for k in range(vertex_offsets[v], vertex_offsets[v + 1]):
                 g = vertex_faces[k]
                 if stamp[g] != f:
                     stamp[g] = f
-                    count += 1
-        offsets[f + 1] = offsets[f] + count
-    neighbours = np.empty(offsets[m], np.int64)
-    stamp[:] = -1
-    for f in range(m):
-        at = offsets[f]
-        for c in range(3):
-            v = F[f, c]
-            for k in range(vertex_offsets[v], vertex_offsets[v + 1]):
-                g = vertex_faces[k]
-                if stamp[g] != f:
-                    stamp[g] = f
-                    neighbours[at] = g
+                    listed[at] = g
                     at += 1
-        neighbours[offsets[f]:offsets[f + 1]].sort()
-    return offsets, neighbours
+        listed[starts[f]:at].sort()
+        counts[f] = at - starts[f]
+    return counts, listed
 
 
 def window_faces(V, F, adjacency, face, *, origin, right, up, normal, bounds, limit=WINDOW_FACE_LIMIT):
