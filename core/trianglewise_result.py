@@ -107,7 +107,7 @@ class TrianglewiseResult:
         the texel floor ``lambda >= sqrt(min_texels / A)``, ``A`` its input area in texels (at most 1), and, given
         signal stretch's targets, each textured triangle's target area drawn towards the area signal stretch
         gives it. Yields ``(done, total)`` after each slice of faces whose texels it tested
-        (:func:`.loss.iter_textured_triangles`); returns the targets.
+        (:func:`.loss.iter_textured_triangles`), then after each plane's texel areas; returns the targets.
 
         Parameters
         ----------
@@ -184,10 +184,12 @@ class TrianglewiseResult:
         # A stack: the floor counts texels of the densest plane in which the triangle is textured.
         area = texel_areas(uv, planes[0].shape[1], planes[0].shape[0])
         textured = own[0].copy()
+        yield 1, len(planes) + 1  # a plane's texel areas at a time: a few hundredths of a second on 40,000 faces
         for number, plane in enumerate(planes[1:], start=1):
             own_area = texel_areas(uv, plane.shape[1], plane.shape[0])
             area = np.where(own[number] & (~textured | (own_area > area)), own_area, area)
             textured |= own[number]
+            yield number + 1, len(planes) + 1
         textured &= ~self.unevaluated
         if min_texels > 0:
             with np.errstate(divide="ignore"):

@@ -403,23 +403,24 @@ def test_fit_targets_raise_the_stretches_of_textured_triangles_to_the_texel_floo
 
 
 def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
-    # The four triangles of the texel-floor test, slices of 3 faces: two slices, (3, 4) then (4, 4), and the
-    # floored targets of the test above; with a second plane two more steps count up to 8.
+    # The four triangles of the texel-floor test, slices of 3 faces: two slices, (3, 4) then (4, 4), then one step
+    # per plane's texel areas, (1, 2) for one plane, and the floored targets of the test above; with a second plane
+    # two more texel-test steps count up to 8 and the areas up to 3.
     texture, uv, params, result = _hand_placed_targets()
     monkeypatch.setattr(loss, "TEXTURED_SLICE", 3)
     steps = []
     targets = run_generator(result.iter_fit_targets(uv, texture, min_texels=2.0), lambda *step: steps.append(step))
-    assert steps == [(3, 4), (4, 4)]
+    assert steps == [(3, 4), (4, 4), (1, 2)]
     np.testing.assert_allclose(targets, [[0.3, 0.5, 0.5, 0.2], [0.0, 0.1, 0.1, 0.0], [0.0, 1.0, 1.0, 0.0],
                                          [0.1, 0.6, 0.9, 0.4]], rtol=1e-12)
     steps = list(result.iter_fit_targets(uv, [texture, texture], min_texels=2.0))
-    assert steps == [(3, 8), (4, 8), (7, 8), (8, 8)]
-    # Given the texel test's answer, the targets are the same and nothing is tested (no step).
+    assert steps == [(3, 8), (4, 8), (7, 8), (8, 8), (1, 3), (2, 3)]
+    # Given the texel test's answer, the targets are the same and nothing is tested (the areas' step only).
     textured = loss.textured_triangles(uv[result.faces], texture, per_plane=True)
     steps = []
     given = run_generator(result.iter_fit_targets(uv, texture, min_texels=2.0, textured=textured),
                           lambda *step: steps.append(step))
-    assert steps == []
+    assert steps == [(1, 2)]
     np.testing.assert_array_equal(given, targets)
     with pytest.raises(ValueError, match="textured must have shape"):
         result.fit_targets(uv, texture, min_texels=2.0, textured=textured[:, :2])
