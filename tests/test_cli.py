@@ -79,6 +79,12 @@ def test_the_cost_measure_reaches_the_settings():
     assert main(["optimize", str(SPOT), "--out", "x.blend", "--cost-measure", "bytes"]) == 2
 
 
+def test_unstack_reaches_the_settings():
+    assert parse_args(["optimize", str(SPOT), "--out", "x.blend"]).settings.keep_stacks  # stacked islands stay so
+    assert not parse_args(["optimize", str(SPOT), "--out", "x.blend", "--unstack"]).settings.keep_stacks
+    assert not parse_args(["batch", str(SPOT), "--out", "lib", "--unstack"]).settings.keep_stacks
+
+
 def test_cost_and_resolution_are_exclusive():
     assert main(["optimize", str(SPOT), "--out", "x.blend", "--cost", "0.3", "--resolution", "512"]) == 2
 
