@@ -250,11 +250,12 @@ def test_generator_yields_progress_and_returns_the_result():
     generator = iter_solve_meshwise(SQUARE_F, SQUARE_UV, params, weights="identity", max_iterations=5)
     steps = []
     result = run_generator(generator, lambda *step: steps.append(step))
-    assert steps == [(i, 5) for i in range(0, result.iterations + 1)]  # the set-up, then each iteration
+    # the set-up (repeated while the Hessian's pattern is built in a thread, on a loaded machine), then each iteration
+    assert list(dict.fromkeys(steps)) == [(i, 5) for i in range(0, result.iterations + 1)]
     calls = []
     solve_meshwise(SQUARE_F, SQUARE_UV, params, weights="identity", max_iterations=5,
                    progress=lambda done, total: calls.append((done, total)))
-    assert calls == steps
+    assert list(dict.fromkeys(calls)) == list(dict.fromkeys(steps))
 
 
 @pytest.mark.parametrize(
