@@ -90,7 +90,7 @@ from .deformation import inverse_2x2
 from .loss import _check_view_faces, prepare_triangles
 from .loss_planes import texture_planes
 from .one_ring import one_ring_faces
-from .progress import run_generator
+from .progress import report_while_waiting, run_generator
 from .trianglewise_result import TrianglewiseResult
 from .worker_pool import WorkerDiedError, run_chunks
 
@@ -382,8 +382,9 @@ def _prepared(state, faces):
     return problems
 
 
-def _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, options, view_faces="window"):
-    """What the workers share: the mesh, the texture (a tuple of planes), the one-rings, every face's view size
+def _iter_state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, options, view_faces="window"):
+    """Generator: what the workers share, yielding None between its whole-mesh parts (each a few hundredths of a
+    second on 40,000 faces): the mesh, the texture (a tuple of planes), the one-rings, every face's view size
     (one pixel per texel of the densest plane, :func:`.camera.texel_matched_pixels`) and which faces the views
     draw (:data:`.loss.VIEW_FACES`)."""
     view_pixels = np.zeros(len(F), dtype=np.int64)
@@ -391,8 +392,10 @@ def _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, options, vie
     view_pixels[faces] = texel_matched_pixels(V, F, uv, planes[0].shape, faces, minimum=screen_pixels,
                                               maximum=max_screen_pixels)
     for plane in planes[1:]:  # a stack: one pixel per texel of its densest plane
+        yield
         view_pixels[faces] = np.maximum(view_pixels[faces], texel_matched_pixels(
             V, F, uv, plane.shape, faces, minimum=screen_pixels, maximum=max_screen_pixels))
+    yield
     return {"V": V, "F": F, "uv": uv, "luma": luma, "adjacency": one_ring_faces(F, V=V),
             "view_pixels": view_pixels, "view_faces": _check_view_faces(view_faces), "options": options}
 
@@ -487,9 +490,10 @@ def iter_optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, sc
     yield done, total
     if not len(remaining):
         return result()
-    state = _state(V, F, uv, luma, remaining, screen_pixels, max_screen_pixels,
-                   {"epsilon": float(epsilon), "evaluations": int(evaluations), "lambda_min": float(lambda_min),
-                    "formulation": formulation, "backend": backend, "seed": int(seed)}, view_faces)
+    options = {"epsilon": float(epsilon), "evaluations": int(evaluations), "lambda_min": float(lambda_min),
+               "formulation": formulation, "backend": backend, "seed": int(seed)}
+    state = yield from report_while_waiting(_iter_state(V, F, uv, luma, remaining, screen_pixels, max_screen_pixels,
+                                                        options, view_faces), (done, total))
     saved = time.monotonic()
     with contextlib.closing(run_chunks(_optimize_chunk, state, remaining, workers=int(workers),
                                        chunk_size=int(chunk_size), scheduler=scheduler)) as chunks:
@@ -714,12 +718,12 @@ def _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels
                  view_faces="window", scheduler=None):
     """E of ``params`` (m, 4), a row per face of the mesh, at ``faces``, in worker processes; yields
     ``(done, total)`` faces and returns the losses."""
-    state = _state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels, {"params": params[:, None, :]},
-                   view_faces)
-    out = np.empty(len(faces))
-    row_of = {int(face): row for row, face in enumerate(faces)}
     done = 0
     yield done, len(faces)
+    state = yield from report_while_waiting(_iter_state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels,
+                                                        {"params": params[:, None, :]}, view_faces), (done, len(faces)))
+    out = np.empty(len(faces))
+    row_of = {int(face): row for row, face in enumerate(faces)}
     with contextlib.closing(run_chunks(_losses_chunk, state, faces, workers=int(workers),
                                        chunk_size=int(chunk_size), scheduler=scheduler)) as chunks:
         for item in chunks:

@@ -7,6 +7,7 @@ from perceptual_uv.core import loss
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core.camera import triangle_cameras
 from perceptual_uv.core.one_ring import one_ring_faces, window_faces
+from perceptual_uv.core.progress import run_generator
 from perceptual_uv.core.raster import rasterize
 
 # Row heights of a flat grid three unit-wide cells across: square rows (well-shaped triangles, whose window is
@@ -152,10 +153,10 @@ def test_fixed_64_pixel_views():
     # App. A's fixed 64 px view: max_screen_pixels = screen_pixels = 64 gives 64 px whatever the texel count.
     V, F, uv = banded_mesh()
     big = np.zeros((2048, 2048))
-    state = tw._state(V, F, uv, big, np.arange(len(F)), 64, 64, {}, "one_ring")
+    state = run_generator(tw._iter_state(V, F, uv, big, np.arange(len(F)), 64, 64, {}, "one_ring"))
     assert np.all(state["view_pixels"] == 64)
     assert state["view_faces"] == "one_ring"
-    grown = tw._state(V, F, uv, big, np.arange(len(F)), 64, tw.MAX_SCREEN_PIXELS, {})
+    grown = run_generator(tw._iter_state(V, F, uv, big, np.arange(len(F)), 64, tw.MAX_SCREEN_PIXELS, {}))
     assert grown["view_pixels"].max() > 64 and grown["view_faces"] == "window"
 
 

@@ -30,13 +30,14 @@ def test_iter_losses_yield_face_counts_and_return_the_losses():
     progress = []
     losses = run_generator(tw.iter_losses_at(V, F, uv, texture(), new_uv, workers=1, chunk_size=3),
                            lambda *step: progress.append(step))
-    assert progress == [(0, 8), (3, 8), (6, 8), (8, 8)]
+    # the start, the workers' shared state (one step between the view sizes and the one-rings), then each chunk
+    assert progress == [(0, 8), (0, 8), (3, 8), (6, 8), (8, 8)]
     np.testing.assert_array_equal(losses, tw.losses_at(V, F, uv, texture(), new_uv))
     params = np.tile([0.0, 0.7, 0.6, 0.0], (8, 1))
     progress = []
     losses = run_generator(tw.iter_losses_of(V, F, uv, texture(), params, workers=1, chunk_size=4),
                            lambda *step: progress.append(step))
-    assert progress == [(0, 8), (4, 8), (8, 8)]
+    assert progress == [(0, 8), (0, 8), (4, 8), (8, 8)]
     np.testing.assert_array_equal(losses, tw.losses_of(V, F, uv, texture(), params))
 
 

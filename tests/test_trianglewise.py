@@ -206,12 +206,13 @@ def test_iter_optimize_triangles_yields_progress_then_result():
     stage = tw.iter_optimize_triangles(V, F, uv, _smooth_texture(), evaluations=10, workers=1, chunk_size=3)
     progress = []
     result = run_generator(stage, lambda *step: progress.append(step))
-    assert progress == [(0, 8), (3, 8), (6, 8), (8, 8)]
+    # the start, the workers' shared state (one step between the view sizes and the one-rings), then each chunk
+    assert progress == [(0, 8), (0, 8), (3, 8), (6, 8), (8, 8)]
     assert result.params.shape == (8, 4) and result.evaluations.shape == (8,)
     calls = []
     tw.optimize_triangles(V, F, uv, _smooth_texture(), evaluations=10, workers=1, chunk_size=4,
                           progress=lambda done, total: calls.append((done, total)))
-    assert calls == [(0, 8), (4, 8), (8, 8)]
+    assert calls == [(0, 8), (0, 8), (4, 8), (8, 8)]
 
 
 def test_a_run_cut_off_resumes_from_its_checkpoint_to_the_uninterrupted_result(monkeypatch):
