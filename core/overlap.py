@@ -363,7 +363,8 @@ def restore_folded_charts(uv_in, uv_new, face_chart, *, tolerance=FOLD_TOLERANCE
 
 
 def iter_restore_folded_charts(uv_in, uv_new, face_chart, *, tolerance=FOLD_TOLERANCE):
-    """Generator form of :func:`restore_folded_charts`: yields None after each mesh's shared area, returns its result.
+    """Generator form of :func:`restore_folded_charts`: yields None after the charts' shared areas in ``uv_new`` and
+    after those in ``uv_in`` (whole-mesh work each), returns its result.
 
     Parameters
     ----------
