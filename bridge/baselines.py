@@ -71,9 +71,10 @@ def _pack(objects, name, face_stack=None):
 
 
 def _stacks(F, uv_in, keep_stacks=True):
-    """The input's charts and their stacks (:func:`core.stacks.stacked_charts`; None when not kept)."""
-    face_chart = uv_topology(F, uv_in).face_chart
-    return face_chart, (stacked_charts(uv_in, face_chart) if keep_stacks else None)
+    """The input's charts (``uv_topology``) and their stacks (:func:`core.stacks.stacked_charts`; None when not
+    kept)."""
+    topology = uv_topology(F, uv_in)
+    return topology, (stacked_charts(uv_in, topology.face_chart) if keep_stacks else None)
 
 
 def _face_stack(face_chart, stacks):
@@ -93,7 +94,8 @@ def _write(objects, name, uv_all):
 def _finished(objects, name, uv_in, F, uv_new, texture, start):
     """Post-process ``uv_new`` (:func:`finish_charts`), write it as UV map ``name`` and pack it; returns timings
     (s) and what the post-processing did."""
-    face_chart, stacks = _stacks(F, uv_in)
+    topology, stacks = _stacks(F, uv_in)
+    face_chart = topology.face_chart
     uv, restored, angles = finish_charts(uv_in, uv_new, face_chart, texel_scale=texture.shape[1::-1], stacks=stacks)
     _write(objects, name, uv)
     _pack(objects, name, _face_stack(face_chart, stacks))
@@ -160,7 +162,8 @@ def repacked_input(objects, *, source_uv, name="InputRepacked"):
     start = time.perf_counter()
     _, F, uv = mesh_arrays(objects, source_uv)
     _write(objects, name, uv)
-    _pack(objects, name, _face_stack(*_stacks(F, uv)))
+    topology, stacks = _stacks(F, uv)
+    _pack(objects, name, _face_stack(topology.face_chart, stacks))
     return {"total": time.perf_counter() - start}
 
 
@@ -353,18 +356,20 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     params = triangles.fit_targets(uv, planes, min_texels=min_texels, signal_targets=signal,
                                    signal_weight=signal_weight)
     fit_losses = None
-    face_chart, stacks = _stacks(F, uv, keep_stacks)
+    topology, stacks = _stacks(F, uv, keep_stacks)
+    face_chart = topology.face_chart
     if (weights, formulation, rotation_scale) == ("perceptual", "perceptual", None):
         fit = fit_charts(F, uv, params, *triangles.fit_weights(floor=weight_floor),
                          measure=lambda new_uv: losses_at(V, F, uv, planes, new_uv, workers=workers),
-                         texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance, stacks=stacks)
+                         texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance, stacks=stacks,
+                         topology=topology)
         uv_fit, post, fit_losses = fit.uv, _post_counts(fit.restored, fit.angles), fit.losses
     else:
         w_R, w_S = triangles.fit_weights(floor=weight_floor,
                                          rotation_scale=0.0 if rotation_scale is None else rotation_scale)
         result = solve_meshwise(F, uv, params, w_R, w_S, weights=weights, formulation=formulation,
-                                texel_scale=texture.shape[1::-1])
-        uv_fit, restored, angles = finish_charts(uv, result.uv, result.topology.face_chart, alpha=params[:, 0],
+                                texel_scale=texture.shape[1::-1], topology=topology)
+        uv_fit, restored, angles = finish_charts(uv, result.uv, face_chart, alpha=params[:, 0],
                                                  w_R=triangles.fit_weights()[0], texel_scale=texture.shape[1::-1],
                                                  stacks=stacks)
         post = _post_counts(restored, angles)

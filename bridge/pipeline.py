@@ -470,10 +470,11 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             return losses
 
         yield step("mesh", 0, 1, "Finding the UV islands that share texels")
-        input_charts = uv_topology(F, uv_in).face_chart
+        topology = uv_topology(F, uv_in)
+        input_charts = topology.face_chart
         stacks = stacked_charts(uv_in, input_charts) if settings.keep_stacks else None
         stage = iter_fit_charts(F, uv_in, params, w_R, w_S, measure=measure, texel_scale=(width, height),
-                                stacks=stacks)
+                                stacks=stacks, topology=topology)
         meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit, with and without rotation targets", clock, step)
         uv_fit, restored, losses = meshwise.uv, meshwise.restored, meshwise.losses
         if restored.size:
@@ -607,7 +608,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "texel_reuse": float(reuse_out),
             "times_s": {key: round(value, 3) for key, value in times.items()},
             "flipped_triangles": int(meshwise.flipped),
-            "overlapping_pairs": _overlap_report(uv_out, meshwise.topology.face_chart),
+            "overlapping_pairs": _overlap_report(uv_out, input_charts),
             "restored_charts": int(restored.size),
             "stacked_charts": stacked,
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),

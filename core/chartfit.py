@@ -134,7 +134,7 @@ def _iter_finish_charts(uv_in, uv_new, face_chart, *, alpha, w_R, texel_scale, f
 
 
 def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100,
-                    fold_tolerance=FOLD_TOLERANCE, stacks=None):
+                    fold_tolerance=FOLD_TOLERANCE, stacks=None, topology=None):
     """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`.
 
     It yields once the charts are found; per fit after the solver's set-up and every iteration, before, between
@@ -150,7 +150,10 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     if targets.ndim != 2 or targets.shape[1] != 4:
         raise ValueError(f"targets must be (alpha, lambda1, lambda2, beta) rows of shape (m, 4), got "
                          f"{targets.shape}")
-    topology = uv_topology(F, uv)
+    if topology is None:
+        topology = uv_topology(F, uv)
+    elif topology.face_chart.shape != (len(uv),):
+        raise ValueError("topology does not belong to these faces")
     chart = topology.face_chart
     steps = max_iterations + 1
     yield 0, 2 * steps  # the charts' topology is a step of its own
@@ -205,7 +208,7 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
 
 
 def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max_iterations=100,
-               fold_tolerance=FOLD_TOLERANCE, stacks=None, progress=None):
+               fold_tolerance=FOLD_TOLERANCE, stacks=None, topology=None, progress=None):
     """Fit the mesh-wise stage with and without Eq. 16's rotation terms; each chart keeps the better fit.
 
     Parameters
@@ -238,6 +241,8 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
         Stack of every chart of the input (:func:`.stacks.stacked_charts`): the charts of a stack get their
         input layout back together in both fits (:func:`finish_charts`) and keep the same fit. Without it no
         chart is stacked.
+    topology : .charts.UVTopology, optional
+        ``uv_topology(F, uv)`` when the caller has it already (it numbers the charts ``stacks`` refers to).
     progress : callable, optional
         Called as ``progress(done, total)``.
 
@@ -258,5 +263,6 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
     Sun et al. 2022, Eq. 16-19 (the fit), Sec. 4.1 (E), Eq. 17 (``w_R``), Sec. 4.2 ("Bijectivity").
     """
     return run_generator(iter_fit_charts(F, uv, targets, w_R, w_S, measure=measure, texel_scale=texel_scale,
-                                         max_iterations=max_iterations, fold_tolerance=fold_tolerance, stacks=stacks),
+                                         max_iterations=max_iterations, fold_tolerance=fold_tolerance, stacks=stacks,
+                                         topology=topology),
                          progress)

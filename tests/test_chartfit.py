@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core.chartfit import fit_charts
+from perceptual_uv.core.charts import uv_topology
 
 # Two unit squares, one chart each. In both, the two triangles want half their size (lambda = 0.5) and angles
 # pi/8 apart: without rotation terms a similarity meets both stretches exactly, with them the chart bends.
@@ -53,3 +54,10 @@ def test_a_measure_of_the_wrong_shape_is_refused():
         fit_charts(F, UV, TARGETS, WEIGHTS, WEIGHTS, measure=lambda new_uv: np.zeros(3))
     with pytest.raises(ValueError, match="targets"):
         fit_charts(F, UV, TARGETS[:, :3], WEIGHTS, WEIGHTS, measure=_chart_loss)
+    with pytest.raises(ValueError, match="topology does not belong"):
+        fit_charts(F, UV, TARGETS, WEIGHTS, WEIGHTS, measure=_chart_loss, topology=uv_topology(F[:2], UV[:2]))
+
+
+def test_a_given_topology_gives_the_same_fit():
+    fit = fit_charts(F, UV, TARGETS, WEIGHTS, WEIGHTS, measure=_chart_loss, topology=uv_topology(F, UV))
+    np.testing.assert_array_equal(fit.uv, fit_charts(F, UV, TARGETS, WEIGHTS, WEIGHTS, measure=_chart_loss).uv)
