@@ -23,6 +23,12 @@ work and 10x beyond, the renders equal to about 1e-11. Both are direct solves, s
 systems near the identity (about one pixel per texel, held only by the ridge) are solved as exactly as the
 well-conditioned ones of shrunk triangles.
 
+Before either, the pixels that the re-bake matches exactly are taken out (:mod:`.rebake_peel`): a pixel alone in
+its cell that reads a texel no other pixel reads renders its reference whatever the other texels are, and
+removing it can leave the next pixel the only reader of a texel. A view whose texels are finer than its pixels
+(a footprint wider than the largest view, under a mild shrink) peels away entirely, E = 0 without a
+factorization, where the solve would couple the footprint's pixels, a few texels apart, into one large system.
+
 References
 ----------
 Sun et al. 2022, Eq. 3, 5, 8-11.
@@ -36,6 +42,7 @@ from .bake_lsq import (_apply_renumber, _band_cholesky_solve, _band_factorize, _
                        _solve_normal_equations)
 from .gmsd import _covered_gmsd_kernel, _covered_gmsd_planned, _extension_plan
 from .multifrontal import _multifrontal_solve
+from .rebake_peel import _core_cells, _peel_cells, _single_pixel_weights
 
 __all__ = []
 
@@ -43,6 +50,10 @@ __all__ = []
 #: (:func:`.multifrontal._multifrontal_solve`) instead of by the band or envelope Cholesky: about where the two
 #: take the same time (a few thousand texels in a footprint 30-40 texels wide).
 DISSECTION_COST = 1_000_000
+
+#: Cells of one pixel in a view from which on the re-bake first peels the pixels it matches exactly
+#: (:mod:`.rebake_peel`); below it the peeling pass costs about what it saves.
+PEEL_MIN_CELLS = 1024
 
 
 @njit(inline="always")
@@ -155,7 +166,7 @@ def _cell_grid(points, a00, a01, a10, a11, cx, cy):
 
 @njit
 def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ridge, rendered,
-                         dissection_cost=DISSECTION_COST):
+                         dissection_cost=DISSECTION_COST, peel_min_cells=PEEL_MIN_CELLS):
     """Numba: deform, re-bake (Eq. 11) and re-render ``P`` planes in one sweep; False if the caller must fall
     back.
 
@@ -177,10 +188,12 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ri
     them, whichever gives the smaller envelope (the first suits compact footprints, the second minified ones
     where pixels read disjoint texel groups). Falls back only when round-off puts a point outside the box.
 
-    The solve is a band or envelope Cholesky in that numbering, or, when its work estimate exceeds
-    ``dissection_cost`` (default :data:`DISSECTION_COST`), a multifrontal Cholesky in nested-dissection order
-    over the texels' positions in the box (:func:`.multifrontal._multifrontal_solve`). Tests force either
-    with ``0`` or ``inf``.
+    Pixels alone in their cell that the re-bake matches exactly (:mod:`.rebake_peel`) render their reference and
+    leave the system first, when the view has at least ``peel_min_cells`` (default :data:`PEEL_MIN_CELLS`) cells
+    of one pixel; ``2**62`` turns it off. The solve is a band or envelope Cholesky in that numbering, or, when
+    its work estimate exceeds ``dissection_cost`` (default :data:`DISSECTION_COST`), a multifrontal Cholesky in
+    nested-dissection order over the texels' positions in the box (:func:`.multifrontal._multifrontal_solve`).
+    Tests force either with ``0`` or ``inf``.
     """
     count = points.shape[0]
     n_planes = references.shape[0]
@@ -371,6 +384,18 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ri
                 n_tex += 1
             flat_tex[order[r]] = n_tex
         n_tex += 1
+    # Cells of one pixel that read a texel of their own render their targets exactly (:mod:`.rebake_peel`):
+    # they leave the system, which keeps only the core's cells and texels (in the same texel order).
+    if n_cells >= peel_min_cells:
+        weight, n_single = _single_pixel_weights(pix_cell, acc, n_cells)
+        if n_single >= peel_min_cells:
+            keep, kept = _peel_cells(cell_tex, weight, n_tex)
+            if kept == 0:
+                rendered[:, :] = references
+                return True
+            if kept < n_cells:
+                cell_tex, acc, cell_pos, n_tex = _core_cells(keep, kept, cell_tex, acc, cell_pos, n_tex, pix_cell)
+                n_cells = kept
     renumber, n_components = _group_by_component(cell_tex, n_tex)
     if n_components > 1:
         cell_tex = _apply_renumber(cell_tex, renumber)
@@ -472,6 +497,9 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ri
     if n_planes == 1:
         for p in range(count):
             c = pix_cell[p]
+            if c < 0:
+                rendered[0, p] = references[0, p]
+                continue
             fx = frac[p, 0]
             fy = frac[p, 1]
             rendered[0, p] = ((1.0 - fx) * ((1.0 - fy) * cell_value[c, 0] + fy * cell_value[c, 2])
@@ -479,6 +507,10 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ri
         return True
     for p in range(count):
         c = pix_cell[p]
+        if c < 0:
+            for q in range(n_planes):
+                rendered[q, p] = references[q, p]
+            continue
         fx = frac[p, 0]
         fy = frac[p, 1]
         for q in range(n_planes):
@@ -490,10 +522,11 @@ def _rebake_render_cells(points, references, box, a00, a01, a10, a11, cx, cy, ri
 
 @njit
 def _evaluate_planes_kernel(params, points, pooled_index, box, references, reference_gradients, centre, ridge,
-                            c_gmsd, use_cells, dissection_cost=DISSECTION_COST):
+                            c_gmsd, use_cells, dissection_cost=DISSECTION_COST, peel_min_cells=PEEL_MIN_CELLS):
     """Numba: E of ``P`` planes on one texel grid, (k, 4) params -> (k, P) (``references`` (P, count),
     ``reference_gradients`` (P, m, m)); :func:`.loss._evaluate_kernel` is the case P = 1.
-    ``dissection_cost`` chooses the re-bake's solver (:func:`_rebake_render_cells`)."""
+    ``dissection_cost`` chooses the re-bake's solver and ``peel_min_cells`` when it peels first
+    (:func:`_rebake_render_cells`)."""
     k = params.shape[0]
     n_planes = references.shape[0]
     out = np.empty((k, n_planes))
@@ -526,7 +559,8 @@ def _evaluate_planes_kernel(params, points, pooled_index, box, references, refer
         a10 = sa * s00 + ca * s01
         a11 = sa * s01 + ca * s11
         done = count > 0 and use_cells and _rebake_render_cells(
-            points, references, box, a00, a01, a10, a11, centre[0], centre[1], ridge, rendered, dissection_cost)
+            points, references, box, a00, a01, a10, a11, centre[0], centre[1], ridge, rendered, dissection_cost,
+            peel_min_cells)
         if not done:
             ids, weights, texel = _deformed_ids(points, a00, a01, a10, a11, centre[0], centre[1])
             for q in range(n_planes):

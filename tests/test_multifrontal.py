@@ -15,6 +15,7 @@ from meshes import grid_mesh  # tests/ is on sys.path under pytest
 IDENTITY = [0.0, 1.0, 1.0, 0.0]
 NESTED = 0.0  # dissection_cost: every re-bake through core.multifrontal
 DIRECT = np.inf  # never: band or envelope Cholesky
+NO_PEEL = 2 ** 62  # peel_min_cells: every pixel goes to the solver (the peeling is tested in test_rebake_peel.py)
 
 
 def lattice_blob(rng, size=40):
@@ -134,8 +135,8 @@ def texels_read(problem, row):
 
 
 def assert_same_rebake(problem, params, planes=None, rtol=1e-9):
-    """Renders (per pixel) and E of both solvers agree, and the cell path ran both times. The identity (first
-    row) reads enough texels for a dissection several levels deep."""
+    """Renders (per pixel) and E of both solvers agree (every pixel solved: no peeling), and the cell path ran
+    both times. The identity (first row) reads enough texels for a dissection several levels deep."""
     planes = planes or [problem]
     references = np.stack([p.reference for p in planes])
     assert texels_read(problem, params[0]) > 8 * LEAF_TEXELS
@@ -144,12 +145,12 @@ def assert_same_rebake(problem, params, planes=None, rtol=1e-9):
         for name, threshold in (("nested", NESTED), ("direct", DIRECT)):
             out = np.empty_like(references)
             assert _rebake_render_cells(problem.points, references, problem.box, *deformation(row), *problem.centre,
-                                        problem.ridge, out, threshold)
+                                        problem.ridge, out, threshold, NO_PEEL)
             rendered[name] = out
         np.testing.assert_allclose(rendered["nested"], rendered["direct"], rtol=0, atol=1e-9 * np.abs(references).max())
     args = triangle_args(problem, params, planes)
-    e_nested = _evaluate_planes_kernel(*args, NESTED)
-    e_direct = _evaluate_planes_kernel(*args, DIRECT)
+    e_nested = _evaluate_planes_kernel(*args, NESTED, NO_PEEL)
+    e_direct = _evaluate_planes_kernel(*args, DIRECT, NO_PEEL)
     np.testing.assert_allclose(e_nested, e_direct, rtol=rtol, atol=1e-12)
     return e_nested
 
