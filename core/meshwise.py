@@ -59,7 +59,8 @@ Decisions (the paper leaves them open):
   is computed once and assembly only refills values; while no barrier is active the Hessian is constant and
   its sparse LU is reused (SuperLU, minimum degree on the symmetric structure; scipy offers no symbolic
   reuse, and feeding back SuperLU's own permutation was measured slower than reordering, see
-  ``_NewtonSolver``).
+  ``_NewtonSolver``). A factorization (a few tenths of a second on 40,000 faces) runs in a thread, which SuperLU
+  lets the interpreter run beside, so that :func:`iter_solve_meshwise` keeps handing control back meanwhile.
 * Hot loops (local step, per-triangle gradient and Hessian blocks) are numba kernels; each keeps a plain
   numpy reference (``_local_update_reference``, ``_Objective.gradient_and_blocks_reference``) that the tests
   compare against.
@@ -448,6 +449,11 @@ def _assemble(pattern, blocks, shift):
     return sp.csc_matrix((data, pattern["indices"], pattern["indptr"]), shape=(pattern["n"], pattern["n"]))
 
 
+def _factorize(H):
+    """SuperLU of the reduced Hessian ``H`` (CSC): minimum degree on its symmetric structure, diagonal pivots."""
+    return sla.splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+
+
 class _NewtonSolver:
     """Solves ``H d = -g`` for the reduced Hessian, refactoring only when the Hessian's values changed.
 
@@ -466,9 +472,14 @@ class _NewtonSolver:
 
     def newton_step(self, grad, blocks, shift):
         """Step d (reduced) with ``H d = -grad``."""
+        return run_generator(self.iter_newton_step(grad, blocks, shift))
+
+    def iter_newton_step(self, grad, blocks, shift):
+        """Generator form of :meth:`newton_step`: a factorization runs in a thread (SuperLU lets other threads
+        run) while this yields None every 0.1 s; returns the step."""
         H = _assemble(self.pattern, blocks, shift)
         if self.solve is None or not np.array_equal(H.data, self.data):
-            lu = sla.splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+            lu = yield from InThread(_factorize, H).wait()
             self.solve = lu.solve
             self.data = H.data
             self.factorizations += 1
@@ -812,7 +823,8 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
             grad, blocks = objective.gradient_and_blocks(J)
             if shift is None:
                 shift = 1e-12 * np.einsum("tii->t", blocks).sum() / max(problem.n_free, 1)
-            step = solver.newton_step(grad, blocks, shift)
+            step = yield from report_while_waiting(solver.iter_newton_step(grad, blocks, shift),
+                                                   (iteration - 1, int(max_iterations)))
             slope = float(grad @ step)
             if not slope < 0:
                 break
