@@ -470,9 +470,13 @@ class _NewtonSolver:
         self.solve = None
         self.factorizations = 0
 
+    def newton_step(self, grad, blocks, shift):
+        """Step d (reduced) with ``H d = -grad``."""
+        return run_generator(self.iter_newton_step(grad, blocks, shift))
+
     def iter_newton_step(self, grad, blocks, shift):
-        """Generator: the step d (reduced) with ``H d = -grad``. A factorization runs in a thread (SuperLU lets
-        other threads run) while this yields None every 0.1 s."""
+        """Generator form of :meth:`newton_step`: a factorization runs in a thread (SuperLU lets other threads
+        run) while this yields None every 0.1 s; returns the step."""
         H = _assemble(self.pattern, blocks, shift)
         if self.solve is None or not np.array_equal(H.data, self.data):
             lu = yield from InThread(_factorize, H).wait()
