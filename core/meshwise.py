@@ -59,8 +59,7 @@ Decisions (the paper leaves them open):
   is computed once and assembly only refills values; while no barrier is active the Hessian is constant and
   its sparse LU is reused (SuperLU, minimum degree on the symmetric structure; scipy offers no symbolic
   reuse, and feeding back SuperLU's own permutation was measured slower than reordering, see
-  ``_NewtonSolver``). A factorization (a few tenths of a second on 40,000 faces) runs in a thread, which SuperLU
-  lets the interpreter run beside, so that :func:`iter_solve_meshwise` keeps handing control back meanwhile.
+  ``_NewtonSolver``).
 * Hot loops (local step, per-triangle gradient and Hessian blocks) are numba kernels; each keeps a plain
   numpy reference (``_local_update_reference``, ``_Objective.gradient_and_blocks_reference``) that the tests
   compare against.
@@ -449,11 +448,6 @@ def _assemble(pattern, blocks, shift):
     return sp.csc_matrix((data, pattern["indices"], pattern["indptr"]), shape=(pattern["n"], pattern["n"]))
 
 
-def _factorize(H):
-    """SuperLU of the reduced Hessian ``H`` (CSC): minimum degree on its symmetric structure, diagonal pivots."""
-    return sla.splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-
-
 class _NewtonSolver:
     """Solves ``H d = -g`` for the reduced Hessian, refactoring only when the Hessian's values changed.
 
@@ -472,14 +466,9 @@ class _NewtonSolver:
 
     def newton_step(self, grad, blocks, shift):
         """Step d (reduced) with ``H d = -grad``."""
-        return run_generator(self.iter_newton_step(grad, blocks, shift))
-
-    def iter_newton_step(self, grad, blocks, shift):
-        """Generator form of :meth:`newton_step`: a factorization runs in a thread (SuperLU lets other threads
-        run) while this yields None every 0.1 s; returns the step."""
         H = _assemble(self.pattern, blocks, shift)
         if self.solve is None or not np.array_equal(H.data, self.data):
-            lu = yield from InThread(_factorize, H).wait()
+            lu = sla.splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
             self.solve = lu.solve
             self.data = H.data
             self.factorizations += 1
@@ -823,8 +812,7 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
             grad, blocks = objective.gradient_and_blocks(J)
             if shift is None:
                 shift = 1e-12 * np.einsum("tii->t", blocks).sum() / max(problem.n_free, 1)
-            step = yield from report_while_waiting(solver.iter_newton_step(grad, blocks, shift),
-                                                   (iteration - 1, int(max_iterations)))
+            step = solver.newton_step(grad, blocks, shift)
             slope = float(grad @ step)
             if not slope < 0:
                 break

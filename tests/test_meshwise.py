@@ -258,40 +258,6 @@ def test_generator_yields_progress_and_returns_the_result():
     assert list(dict.fromkeys(calls)) == list(dict.fromkeys(steps))
 
 
-def test_generator_hands_control_back_while_the_hessian_is_factorized(monkeypatch):
-    # A factorization made to take 0.6 s: the generator keeps yielding (the same progress) every 0.1 s meanwhile,
-    # and the fit is the one without the delay.
-    import time
-
-    from perceptual_uv.core import meshwise
-
-    params = np.tile([0.2, 0.5, 0.8, 0.3], (2, 1))
-    expected = solve_meshwise(SQUARE_F, SQUARE_UV, params, weights="identity", max_iterations=3)
-    factorize = meshwise._factorize
-    delayed = []
-
-    def slow(H):
-        time.sleep(0.6)
-        delayed.append(H.shape)
-        return factorize(H)
-
-    monkeypatch.setattr(meshwise, "_factorize", slow)
-    generator = iter_solve_meshwise(SQUARE_F, SQUARE_UV, params, weights="identity", max_iterations=3)
-    gaps, last = [], time.perf_counter()
-    while True:
-        try:
-            next(generator)
-        except StopIteration as finished:
-            result = finished.value
-            break
-        now = time.perf_counter()
-        gaps.append(now - last)
-        last = now
-    assert delayed  # the slow factorization ran
-    assert len(gaps) >= 6 * len(delayed) and max(gaps) < 0.3
-    np.testing.assert_array_equal(result.uv, expected.uv)
-
-
 @pytest.mark.parametrize(
     "kwargs, message",
     [
