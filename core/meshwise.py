@@ -56,17 +56,15 @@ Decisions (the paper leaves them open):
 * Eq. 28 compares the weighted terms of Eq. 27: ``w_b`` is divided by 20 after an iteration in which
   ``w_b E_barrier > w_rs E_rs``. Lowering ``w_b`` only lowers the objective, so the history stays monotone.
 * Factorization: the Hessian's sparsity pattern is fixed (one 6x6 block per triangle), so the COO to CSC map
-  is computed once and assembly only refills values. No triangle couples two charts: the Hessian is block
-  diagonal by chart, and each chart's block is factorized on its own (SuperLU, minimum degree on the
-  symmetric structure), between two of which the generator may hand control back; a chart in which no
-  barrier is active has a constant block and keeps its factor. scipy offers no symbolic reuse, and feeding
-  back SuperLU's own permutation was measured slower than reordering (``_NewtonSolver``).
+  is computed once and assembly only refills values; while no barrier is active the Hessian is constant and
+  its sparse LU is reused (SuperLU, minimum degree on the symmetric structure; scipy offers no symbolic
+  reuse, and feeding back SuperLU's own permutation was measured slower than reordering, see
+  ``_NewtonSolver``).
 * Hot loops (local step, per-triangle gradient and Hessian blocks) are numba kernels; each keeps a plain
   numpy reference (``_local_update_reference``, ``_Objective.gradient_and_blocks_reference``) that the tests
   compare against.
 """
 import dataclasses
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,8 +86,6 @@ __all__ = [
     "orient_charts",
     "flipped_triangles",
 ]
-
-FACTORIZATION_SLICE_SECONDS = 0.05  # the Newton step hands control back at least this often (between charts)
 
 _GRAD = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
 _DET_HESSIAN = np.array([[0.0, 0, 0, 1], [0, 0, -1, 0], [0, -1, 0, 0], [1, 0, 0, 0]])
@@ -433,11 +429,11 @@ def _prepare(topology, uv, S_bar, *, degenerate_tol, barrier_threshold):
                     n_vertices=k, free_index=free_index, n_free=int((~fixed_dof).sum()), block_rows=block_rows)
 
 
-def _build_pattern(block_rows, n):
-    """CSC structure of the reduced Hessian (``n`` unknowns, per-triangle rows ``block_rows`` (m, 6), -1 for
-    fixed DOF) and the map from per-triangle 6x6 entries to CSC values."""
-    rows = np.repeat(block_rows[:, :, None], 6, axis=2)  # (m, 6, 6): [t, i, j] -> row of i
-    cols = np.repeat(block_rows[:, None, :], 6, axis=1)
+def _build_pattern(problem):
+    """CSC structure of the reduced Hessian and the map from per-triangle 6x6 entries to CSC values."""
+    n = problem.n_free
+    rows = np.repeat(problem.block_rows[:, :, None], 6, axis=2)  # (m, 6, 6): [t, i, j] -> row of i
+    cols = np.repeat(problem.block_rows[:, None, :], 6, axis=1)
     keep = (rows >= 0) & (cols >= 0)
     diagonal = np.arange(n)
     key = np.concatenate([cols[keep] * n + rows[keep], diagonal * n + diagonal])
@@ -453,64 +449,30 @@ def _assemble(pattern, blocks, shift):
 
 
 class _NewtonSolver:
-    """Solves ``H d = -g`` for the reduced Hessian, one chart at a time, refactoring only the charts whose
-    Hessian values changed.
+    """Solves ``H d = -g`` for the reduced Hessian, refactoring only when the Hessian's values changed.
 
-    No triangle couples two charts, so ``H`` is block diagonal once its unknowns are numbered chart by chart:
-    each chart's block is factorized on its own (SuperLU, minimum degree on the symmetric structure, diagonal
-    pivots) and the solution is the blocks' solutions side by side. The sparsity pattern is fixed (one 6x6
-    block per triangle), so the COO to CSC map is computed once and every assembly is a single ``bincount``.
-    A chart whose values did not change since its last factorization (no barrier term active in it, the fit
-    part being constant) keeps its factor. :meth:`iter_newton_step` hands control back between charts, so a
-    mesh of many charts never holds its caller for a whole factorization. Reusing SuperLU's first permutation
-    with ``permc_spec="NATURAL"`` was measured slower than reordering (tea_set, 43,662 unknowns: 0.83-1.09 s
-    against 0.62-0.65 s per factorization of the whole matrix).
-
-    Parameters
-    ----------
-    problem : _Problem
-    dof_chart : (problem.n_free,) ndarray of int
-        Chart of each reduced unknown.
+    The sparsity pattern is fixed (one 6x6 block per triangle), so the COO to CSC map is computed once and
+    every assembly is a single ``bincount``. While no barrier term is active the Hessian is the constant
+    fit part and its factorization is reused. SuperLU runs with a minimum-degree ordering on the symmetric
+    structure and diagonal pivots; reusing its first permutation with ``permc_spec="NATURAL"`` was measured
+    slower than reordering (tea_set, 43,662 unknowns: 0.83-1.09 s against 0.62-0.65 s per factorization).
     """
 
-    def __init__(self, problem, dof_chart):
-        n = problem.n_free
-        self.order = np.argsort(dof_chart, kind="stable")  # chart-contiguous position -> reduced unknown
-        position = np.empty(n, dtype=np.int64)
-        position[self.order] = np.arange(n)
-        block_rows = np.where(problem.block_rows >= 0, position[np.maximum(problem.block_rows, 0)], -1)
-        self.pattern = _build_pattern(block_rows, n)
-        sorted_chart = np.asarray(dof_chart)[self.order]
-        cuts = np.flatnonzero(np.diff(sorted_chart)) + 1
-        self.bounds = np.concatenate([[0], cuts, [n]]) if n else np.zeros(1, dtype=np.int64)  # chart k: [b_k, b_k+1)
-        self.data = [None] * (len(self.bounds) - 1)
-        self.solves = [None] * (len(self.bounds) - 1)
+    def __init__(self, problem):
+        self.pattern = _build_pattern(problem)
+        self.data = None
+        self.solve = None
         self.factorizations = 0
 
-    def iter_newton_step(self, grad, blocks, shift):
-        """Generator: the step d (reduced) with ``H d = -grad``; yields None when ``FACTORIZATION_SLICE_SECONDS``
-        have passed since the start or the last yield, between two charts' factorizations."""
+    def newton_step(self, grad, blocks, shift):
+        """Step d (reduced) with ``H d = -grad``."""
         H = _assemble(self.pattern, blocks, shift)
-        rhs = -np.asarray(grad)[self.order]
-        solution = np.empty_like(rhs)
-        last = time.perf_counter()
-        for chart, (start, stop) in enumerate(zip(self.bounds[:-1], self.bounds[1:])):
-            begin, end = H.indptr[start], H.indptr[stop]
-            data = H.data[begin:end]
-            if self.solves[chart] is None or not np.array_equal(data, self.data[chart]):
-                block = sp.csc_matrix((data, H.indices[begin:end] - start, H.indptr[start:stop + 1] - begin),
-                                      shape=(stop - start, stop - start))
-                lu = sla.splu(block, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                              options={"SymmetricMode": True})
-                self.solves[chart], self.data[chart] = lu.solve, data.copy()
-                self.factorizations += 1
-            solution[start:stop] = self.solves[chart](rhs[start:stop])
-            if time.perf_counter() - last >= FACTORIZATION_SLICE_SECONDS:
-                yield None
-                last = time.perf_counter()
-        step = np.empty_like(solution)
-        step[self.order] = solution
-        return step
+        if self.solve is None or not np.array_equal(H.data, self.data):
+            lu = sla.splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+            self.solve = lu.solve
+            self.data = H.data
+            self.factorizations += 1
+        return self.solve(-grad)
 
 
 _QUARTER_TURNS = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])  # (cos, sin) of k pi/2
@@ -830,10 +792,7 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
     scale = max(history[0], np.finfo(float).tiny)
     # The Hessian's pattern sorts a few million keys (a few tenths of a second on 40,000 faces): numpy's sort lets
     # other threads run, so it runs in a thread while this generator hands control back.
-    free_dof = np.flatnonzero(problem.free_index >= 0)
-    dof_chart = texel_topology.vertex_chart[free_dof % problem.n_vertices]
-    solver = yield from report_while_waiting(InThread(_NewtonSolver, problem, dof_chart).wait(),
-                                             (0, int(max_iterations)))
+    solver = yield from report_while_waiting(InThread(_NewtonSolver, problem).wait(), (0, int(max_iterations)))
     shift = None
     converged = False
     iteration = 0
@@ -853,8 +812,7 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
             grad, blocks = objective.gradient_and_blocks(J)
             if shift is None:
                 shift = 1e-12 * np.einsum("tii->t", blocks).sum() / max(problem.n_free, 1)
-            step = yield from report_while_waiting(solver.iter_newton_step(grad, blocks, shift),
-                                                   (iteration - 1, int(max_iterations)))
+            step = solver.newton_step(grad, blocks, shift)
             slope = float(grad @ step)
             if not slope < 0:
                 break

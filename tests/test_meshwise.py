@@ -8,9 +8,8 @@ from scipy.optimize import minimize_scalar
 from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import rotation
 from perceptual_uv.core.mesh import read_obj
-from perceptual_uv.core.progress import report_while_waiting, run_generator
-from perceptual_uv.core import meshwise
-from perceptual_uv.core.meshwise import (_local_update_kernel, _local_update_reference, _NewtonSolver,
+from perceptual_uv.core.progress import run_generator
+from perceptual_uv.core.meshwise import (_local_update_kernel, _local_update_reference,
                                          _Objective, _prepare, barrier, fit_energy, iter_solve_meshwise,
                                          flipped_triangles, local_step, orient_charts,
                                          solve_meshwise)
@@ -202,81 +201,6 @@ def test_hessian_kernel_matches_numpy_reference_and_finite_differences(spot):
                - objective.value(problem.jacobians(x - h * direction))) / (2 * h)
     reduced = np.concatenate([direction[:, 0], direction[:, 1]])[problem.free_index >= 0]
     np.testing.assert_allclose(grad @ reduced, numeric, rtol=1e-5)
-
-
-def _barrier_active_problem(spot):
-    """spot's first 600 triangles shrunk so that some barrier terms are active: problem, topology, grad, blocks."""
-    F, uv = spot
-    F, uv = F[:600], uv[:600]
-    topology = uv_topology(F, uv)
-    rng = np.random.default_rng(9)
-    S_bar = np.tile(0.8 * np.eye(2), (len(F), 1, 1))
-    problem = _prepare(topology, uv, S_bar, degenerate_tol=1e-10, barrier_threshold=0.5)
-    x = topology.vertex_uv * [0.5, 0.45] + rng.normal(scale=1e-4, size=topology.vertex_uv.shape)
-    J = problem.jacobians(x)
-    objective = _Objective(problem, rotation(rng.uniform(0, 1, len(F))) @ S_bar, 0.3, 0.05, 0.0)
-    grad, blocks = objective.gradient_and_blocks(J)
-    return problem, topology, grad, blocks
-
-
-def _reference_step(problem, grad, blocks, shift):
-    """The Newton step solved on the whole reduced Hessian, assembled by a plain COO scatter of the 6x6 blocks."""
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as sla
-    rows = np.repeat(problem.block_rows[:, :, None], 6, axis=2)
-    cols = np.repeat(problem.block_rows[:, None, :], 6, axis=1)
-    keep = (rows >= 0) & (cols >= 0)
-    n = problem.n_free
-    H = sp.coo_matrix((blocks[keep], (rows[keep], cols[keep])), shape=(n, n)).tocsc() + shift * sp.identity(n)
-    return sla.spsolve(H.tocsc(), -grad)
-
-
-def _chart_solver(problem, topology):
-    free_dof = np.flatnonzero(problem.free_index >= 0)
-    return _NewtonSolver(problem, topology.vertex_chart[free_dof % problem.n_vertices])
-
-
-def test_newton_step_chart_by_chart_solves_the_whole_hessian(spot):
-    problem, topology, grad, blocks = _barrier_active_problem(spot)
-    charts = len(np.unique(topology.vertex_chart))
-    assert charts > 1
-    solver = _chart_solver(problem, topology)
-    assert len(solver.bounds) - 1 == charts
-    step = run_generator(solver.iter_newton_step(grad, blocks, 1e-9))
-    reference = _reference_step(problem, grad, blocks, 1e-9)
-    np.testing.assert_allclose(step, reference, rtol=0, atol=1e-9 * np.abs(reference).max())
-    assert solver.factorizations == charts
-
-
-def test_newton_step_refactorizes_only_the_charts_whose_hessian_changed(spot):
-    problem, topology, grad, blocks = _barrier_active_problem(spot)
-    solver = _chart_solver(problem, topology)
-    run_generator(solver.iter_newton_step(grad, blocks, 1e-9))
-    first = solver.factorizations
-    run_generator(solver.iter_newton_step(2 * grad, blocks, 1e-9))  # same Hessian: every factor kept
-    assert solver.factorizations == first
-    chart_of_face = topology.face_chart
-    changed = blocks.copy()
-    changed[chart_of_face == chart_of_face[0]] *= 3.0  # one chart's triangles
-    step = run_generator(solver.iter_newton_step(grad, changed, 1e-9))
-    assert solver.factorizations == first + 1
-    reference = _reference_step(problem, grad, changed, 1e-9)
-    np.testing.assert_allclose(step, reference, rtol=0, atol=1e-9 * np.abs(reference).max())
-
-
-def test_newton_step_hands_control_back_between_charts(spot, monkeypatch):
-    problem, topology, grad, blocks = _barrier_active_problem(spot)
-    charts = len(np.unique(topology.vertex_chart))
-    monkeypatch.setattr(meshwise, "FACTORIZATION_SLICE_SECONDS", 0.0)
-    yields = []
-    run_generator(report_while_waiting(_chart_solver(problem, topology).iter_newton_step(grad, blocks, 1e-9),
-                                       ("step",)), yields.append)
-    assert len(yields) == charts  # after each chart's factorization and solve
-    monkeypatch.setattr(meshwise, "FACTORIZATION_SLICE_SECONDS", 1e9)
-    yields.clear()
-    run_generator(report_while_waiting(_chart_solver(problem, topology).iter_newton_step(grad, blocks, 1e-9),
-                                       ("step",)), yields.append)
-    assert yields == []
 
 
 def test_fit_energy_is_zero_for_a_quarter_turn_of_the_target():
