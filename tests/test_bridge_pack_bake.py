@@ -91,6 +91,35 @@ def test_bake_copies_texels_exactly_on_the_same_layout():
     assert image.colorspace_settings.name == "sRGB" and tuple(image.size) == (8, 8)
 
 
+def test_objects_sharing_a_material_bake_from_one_copy_of_its_image(monkeypatch):
+    from perceptual_uv.bridge import bake
+
+    texture = checker_texture(9)
+    strips = [np.array([[k / 3, 0], [(k + 1) / 3, 0], [(k + 1) / 3, 1], [k / 3, 1]]) for k in range(3)]
+    first = textured_quads(strips[:1], texture)
+    objects = [first]
+    for k, strip in enumerate(strips[1:], start=1):  # two more objects with the first one's material
+        mesh = bpy.data.meshes.new(f"strip{k}")
+        mesh.from_pydata([(2.0 * k, 0, 0), (2.0 * k + 1, 0, 0), (2.0 * k + 1, 1, 0), (2.0 * k, 1, 0)], [],
+                         [(0, 1, 2, 3)])
+        mesh.uv_layers.new(name="UVMap").uv.foreach_set("vector", strip.ravel())
+        mesh.materials.append(first.data.materials[0])
+        obj = bpy.data.objects.new(f"strip{k}", mesh)
+        bpy.context.scene.collection.objects.link(obj)
+        objects.append(obj)
+    for obj in objects:
+        obj.data.uv_layers.new(name="Same", do_init=True)
+    copies = []
+    monkeypatch.setattr(bake, "_raw_copy", lambda image, _copy=bake._raw_copy: copies.append(image) or _copy(image))
+    image = bake_base_color(objects, source_uv="UVMap", target_uv="Same", resolution=9, margin=2, image_name="b")
+    assert len(copies) == 1  # one float copy of the shared image, not one per object
+    baked = np.empty(9 * 9 * 4, dtype=np.float32)
+    image.pixels.foreach_get(baked)
+    # each strip is three texel columns wide: the three objects together cover every texel of the layout
+    np.testing.assert_allclose(baked.reshape(9, 9, 4)[..., :3], texture[..., :3], atol=ONE_STEP)
+    assert not [block for block in bpy.data.images if block.name.startswith("perceptual_uv_bake")]
+
+
 def test_bake_through_a_quarter_turn_rotates_the_image():
     texture = checker_texture(8)
     square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
