@@ -10,8 +10,9 @@ the pipeline generator the way the modal operator does: one ``next`` per step. P
 the stage times of the report (``read`` is everything before the triangle-wise stage), the triangle-wise stage
 in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
 freezes for as long as one step takes), and the peak resident memory of the run's whole process tree (the
-pipeline process and its worker processes, sampled every 0.1 s); below each row, the five longest steps with the
-stage and message of the progress report they follow (also in ``--json``).
+pipeline process and its worker or bake processes, sampled every 0.1 s) with the stage it came in and how it
+splits between the pipeline process and the others; below each row, the five longest steps with the stage and
+message of the progress report they follow. ``--json`` also holds each stage's peak (``peak_by_stage``).
 
 ``--operator`` runs with the settings the modal operator adds to the defaults (``bake_in_background``), the way
 "Optimize UVs" drives the pipeline in the interface; ``--set NAME=VALUE`` sets any field of
@@ -25,6 +26,7 @@ count. Each revision first optimizes the bundled spot model once at 10 evaluatio
 compile cache is warm for both and no measured run pays for compilation.
 """
 import argparse
+import contextlib
 import hashlib
 import json
 import os
@@ -56,11 +58,16 @@ def _tuples(value):
     return tuple(_tuples(item) for item in value) if isinstance(value, list) else value
 
 
-def run_pipeline(path, settings_options):
+def run_pipeline(path, settings_options, stage_file=None):
     """Optimize ``path`` in this process, driving the generator step by step; a dict of measurements.
 
-    Run inside the child process, with the package of the revision under test on ``sys.path``.
+    Run inside the child process, with the package of the revision under test on ``sys.path``. The name of the
+    stage running is written to ``stage_file`` at each change of stage, for the parent's memory samples.
     """
+    def enter(stage_name):
+        if stage_file is not None:
+            pathlib.Path(stage_file).write_text(stage_name)
+
     import bpy
 
     from perceptual_uv.bridge.batch import textured_objects
@@ -68,6 +75,7 @@ def run_pipeline(path, settings_options):
     from perceptual_uv.bridge.pipeline import optimize_objects
     from perceptual_uv.core.settings import OptimizeSettings
 
+    enter("import")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     started = time.perf_counter()
     import_model(path)
@@ -87,6 +95,8 @@ def run_pipeline(path, settings_options):
             durations.append((time.perf_counter() - step_started, stage))
             break
         durations.append((time.perf_counter() - step_started, stage))
+        if not stage.startswith(f"{progress.stage}:"):
+            enter(progress.stage)
         stage = f"{progress.stage}: {progress.message}"
         step_started = time.perf_counter()
     durations.sort(reverse=True)
@@ -121,18 +131,28 @@ def _children():
 
 
 def tree_rss_bytes(pid):
-    """Resident memory of ``pid`` and all its descendants, in bytes (0 once it is gone)."""
-    tree, total, stack = _children(), 0, [pid]
+    """Resident memory of ``pid`` and of its descendants, in bytes: ``(own, descendants, live descendants)``
+    (zeros once it is gone)."""
+    tree, own, others, count, stack = _children(), 0, 0, 0, [pid]
     page = os.sysconf("SC_PAGE_SIZE")
     while stack:
         current = stack.pop()
         try:
             with open(f"/proc/{current}/statm") as statm:
-                total += int(statm.read().split()[1]) * page
+                rss = int(statm.read().split()[1]) * page
         except OSError:
-            pass
+            rss = None
+        if current == pid:
+            own = rss or 0
+        elif rss is not None:
+            others, count = others + rss, count + 1
         stack.extend(tree.get(current, []))
-    return total
+    return own, others, count
+
+
+def _peak_entry(own, others, count):
+    return {"total_gib": (own + others) / 2 ** 30, "pipeline_gib": own / 2 ** 30, "others_gib": others / 2 ** 30,
+            "other_processes": count}
 
 
 def measure(tree, path, settings_options):
@@ -145,20 +165,28 @@ def measure(tree, path, settings_options):
     env = dict(os.environ, PYTHONPATH=str(package_root))
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as handle:
         out = pathlib.Path(handle.name)
+    stage_file = out.with_suffix(".stage")
     command = [sys.executable, str(pathlib.Path(__file__).resolve()), "--run-one", str(path), "--json", str(out),
-               "--settings", json.dumps(settings_options)]
+               "--settings", json.dumps(settings_options), "--stage-file", str(stage_file)]
     child = subprocess.Popen(command, env=env, cwd=str(tree), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                              text=True)
-    peak = 0
+    peaks, stage = {}, "start"  # stage -> (total bytes, own, others, count) at its highest total
     while child.poll() is None:
-        peak = max(peak, tree_rss_bytes(child.pid))
+        own, others, count = tree_rss_bytes(child.pid)
+        with contextlib.suppress(OSError):
+            stage = stage_file.read_text().strip() or stage
+        if own + others > peaks.get(stage, (-1,))[0]:
+            peaks[stage] = (own + others, own, others, count)
         time.sleep(0.1)
     errors = child.stderr.read()
+    stage_file.unlink(missing_ok=True)
     if child.returncode != 0:
         raise SystemExit(f"{path} on {tree} failed (exit {child.returncode}):\n{errors[-2000:]}")
     result = json.loads(out.read_text())
     out.unlink()
-    result["peak_rss_gib"] = peak / 2 ** 30
+    result["peak_by_stage"] = {name: _peak_entry(*values[1:]) for name, values in peaks.items()}
+    result["peak_stage"] = max(peaks, key=lambda name: peaks[name][0]) if peaks else "none"
+    result["peak_rss_gib"] = peaks[result["peak_stage"]][0] / 2 ** 30 if peaks else 0.0
     return result
 
 
@@ -200,8 +228,12 @@ def _steps(result):
 def _row(label, result):
     times = result["times_s"]
     stages = " ".join(f"{name} {times.get(name, float('nan')):7.1f}" for name in STAGES)
+    peak = result.get("peak_by_stage", {}).get(result.get("peak_stage"))
+    where = (f" ({result['peak_stage']}: pipeline {peak['pipeline_gib']:.2f} + {peak['other_processes']} other "
+             f"processes {peak['others_gib']:.2f})") if peak else ""
     return (f"  {label:<14} {stages}  {result['triangle_ms_per_face']:7.1f} ms/face  longest step "
-            f"{result['longest_step_s']:6.2f} s ({result['longest_step_stage']})  peak {result['peak_rss_gib']:.2f} GiB")
+            f"{result['longest_step_s']:6.2f} s ({result['longest_step_stage']})  peak {result['peak_rss_gib']:.2f} GiB"
+            f"{where}")
 
 
 def _ratio_row(result, reference):
@@ -229,10 +261,11 @@ def main(argv=None):
     parser.add_argument("--json", type=pathlib.Path, help="write all measurements here")
     parser.add_argument("--run-one", help=argparse.SUPPRESS)
     parser.add_argument("--settings", default="{}", help=argparse.SUPPRESS)
+    parser.add_argument("--stage-file", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     if args.run_one:  # the child process
-        result = run_pipeline(args.run_one, json.loads(args.settings))
+        result = run_pipeline(args.run_one, json.loads(args.settings), args.stage_file)
         args.json.write_text(json.dumps(result))
         return 0
     if not args.models:
