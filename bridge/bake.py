@@ -26,7 +26,7 @@ import numpy as np
 import scipy.ndimage
 
 from ..core.footprint import footprint_texels
-from ..core.progress import run_generator
+from ..core.progress import InThread, report_while_waiting, run_generator
 from ..core.raster import sample_bilinear
 from .image_file import image_is_float
 from .map_reads import _map_sources, _reading_records, _slot_sources, bake_kind, has_transform, transform_problem
@@ -409,7 +409,7 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
     # sRGB and darken them, so the result is a float image too (saved as a 16-bit PNG).
     use_float = any(image.is_float for image in sources)
     image = bpy.data.images.new(image_name, resolution, resolution, alpha=use_alpha, float_buffer=use_float)
-    image.pixels.foreach_set(np.clip(pixels, 0.0, 1.0).ravel())
+    image.pixels.foreach_set(pixels.ravel())
     image.update()
     return image
 
@@ -495,8 +495,14 @@ def _check_objects(objects, source_uv, target_uv, resolution):
     return tiles
 
 
+def _clip_to_unit(pixels):
+    """``pixels`` clipped to [0, 1] in place (numpy lets other threads run meanwhile)."""
+    return np.clip(pixels, 0.0, 1.0, out=pixels)
+
+
 def _new_image(name, pixels, *, alpha, use_float, like=None):
-    """A new image holding ``pixels`` (clipped to [0, 1]); the colour space follows ``like`` (a source image).
+    """A new image holding ``pixels`` (r, r, 4), already in [0, 1] (:func:`_clip_to_unit`); the colour space
+    follows ``like`` (a source image).
 
     The colour space is set before the pixels: setting it afterwards reloads a generated image's buffer.
     """
@@ -507,7 +513,7 @@ def _new_image(name, pixels, *, alpha, use_float, like=None):
     elif like is not None and not use_float:
         with contextlib.suppress(TypeError):
             image.colorspace_settings.name = like.colorspace_settings.name
-    image.pixels.foreach_set(np.clip(pixels, 0.0, 1.0).ravel())
+    image.pixels.foreach_set(pixels.ravel())
     image.update()
     return image
 
@@ -584,13 +590,16 @@ def iter_bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, 
         else:
             baked = None
         for number, (record, resolution, name, map_margin) in enumerate(zip(maps, resolutions, names, margins)):
-            yield (number if baked is None else total), total  # from the child: every map is baked already
+            progress = (number if baked is None else total), total  # from the child: every map is baked already
+            yield progress
             if baked is None:
                 pixels, use_alpha = bake_map_pixels(objects, record, source_uv=source_uv, target_uv=target_uv,
                                                     resolution=resolution, margin=map_margin)
             else:
                 pixels, use_alpha = baked[number]
                 baked[number] = None  # the image holds the pixels from here on
+            # Clipping a 2-4k map reads and writes tens of megabytes: a thread does it while the stage yields.
+            pixels = yield from report_while_waiting(InThread(_clip_to_unit, pixels).wait(), progress)
             image = _new_image(name, pixels, alpha=use_alpha, use_float=image_is_float(record.image),
                                like=record.image)
             results.append(BakeResult(image=image, record=record, kind=bake_kind(record), alpha=use_alpha))

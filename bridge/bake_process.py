@@ -32,6 +32,7 @@ import tempfile
 import numpy as np
 
 from ..core.atomic import atomic_path
+from ..core.progress import InThread, report_while_waiting
 
 __all__ = ["iter_bake_in_background", "WAIT_SECONDS"]
 
@@ -202,13 +203,21 @@ def iter_bake_in_background(objects, maps, *, source_uv, target_uv, resolutions,
         for number in range(total):
             with open(os.path.join(folder, f"map_{number}.json"), encoding="utf-8") as file:
                 use_alpha = json.load(file)["alpha"]
-            results.append((np.load(os.path.join(folder, f"map_{number}.npy")), bool(use_alpha)))
+            # a 4k map's pixels are a quarter gigabyte: read in a thread while the stage yields
+            pixels = yield from report_while_waiting(
+                InThread(_load_pixels, os.path.join(folder, f"map_{number}.npy")).wait(), (total, total))
+            results.append((pixels, bool(use_alpha)))
         return results
     finally:
         if process is not None and process.poll() is None:
             process.kill()
             process.wait()
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def _load_pixels(path):
+    """The float32 pixels the child wrote to ``path``."""
+    return np.load(path)
 
 
 # ---- the child --------------------------------------------------------------------------------------------------

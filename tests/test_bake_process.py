@@ -98,6 +98,26 @@ def test_the_background_bake_gives_the_pixels_of_this_process_bit_for_bit():
     assert max(seconds for seconds, _ in steps[1:]) <= STEP_LIMIT  # the first includes importing the module
 
 
+def test_reading_and_clipping_the_pixels_leave_the_stage_yielding(monkeypatch):
+    """A 4k map's pixels take tenths of a second to read from the child's file and to clip: both run in threads,
+    here made to take 0.4 s each."""
+    from perceptual_uv.bridge import bake
+
+    def slow(function):
+        return lambda *args: (time.sleep(0.4), function(*args))[1]
+
+    monkeypatch.setattr(bake_process, "_load_pixels", slow(bake_process._load_pixels))
+    monkeypatch.setattr(bake, "_clip_to_unit", slow(bake._clip_to_unit))
+    obj, image = pbr_grid_with_alpha()
+    source_uv = add_turned_uv(obj)
+    records, _ = read_maps([obj], source_uv, image)
+    options = dict(source_uv=source_uv, target_uv="Target", resolutions=[64, 32, 64, 16], margin=2,
+                   names=["base", "orm", "normal", "emissive"])
+    results, steps = drive(iter_bake_maps([obj], records, in_background=True, **options))
+    assert max(seconds for seconds, _ in steps[1:]) <= STEP_LIMIT, sorted(steps)[-3:]
+    assert len(results) == 4 and np.all(pixels_of(results[0].image) <= 1.0)
+
+
 def test_a_file_texture_bakes_the_same_in_the_background():
     from perceptual_uv.bridge.mesh_io import import_model
 
