@@ -9,10 +9,12 @@ Each model runs in a fresh process (``--models`` takes model folders or files) a
 the pipeline generator the way the modal operator does: one ``next`` per step. Printed per model and revision:
 the stage times of the report (``read`` is everything before the triangle-wise stage), the triangle-wise stage
 in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
-freezes for as long as one step takes), and the peak resident memory of the run's whole process tree (the
-pipeline process and its worker or bake processes, sampled every 0.1 s) with the stage it came in and how it
-splits between the pipeline process and the others; below each row, the five longest steps with the stage and
-message of the progress report they follow. ``--json`` also holds each stage's peak (``peak_by_stage``).
+freezes for as long as one step takes), and the peak memory of the run's whole process tree (the pipeline
+process and its worker or bake processes, sampled every 0.1 s): the sum of their resident sizes, and the sum of
+their proportional set sizes, which counts the pages they share (the workers' shared arrays) once, with the stage
+it came in and how it splits between the pipeline process and the others; below each row, the five longest steps
+with the stage and message of the progress report they follow. ``--json`` also holds each stage's peak
+(``peak_by_stage``, proportional).
 
 ``--operator`` runs with the settings the modal operator adds to the defaults (``bake_in_background``), the way
 "Optimize UVs" drives the pipeline in the interface; ``--set NAME=VALUE`` sets any field of
@@ -130,22 +132,37 @@ def _children():
     return tree
 
 
-def tree_rss_bytes(pid):
-    """Resident memory of ``pid`` and of its descendants, in bytes: ``(own, descendants, live descendants)``
-    (zeros once it is gone)."""
-    tree, own, others, count, stack = _children(), 0, 0, 0, [pid]
+def _process_memory(pid, page):
+    """``(resident, proportional)`` bytes of one process. The proportional set size (``Pss`` of
+    /proc/PID/smaps_rollup) splits each shared page between the processes that map it, so the sum over a process
+    tree counts the workers' shared arrays once; where the kernel has no smaps_rollup it is the resident size."""
+    with open(f"/proc/{pid}/statm") as statm:
+        resident = int(statm.read().split()[1]) * page
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as rollup:
+            for line in rollup:
+                if line.startswith("Pss:"):
+                    return resident, int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resident, resident
+
+
+def tree_memory(pid):
+    """Memory of ``pid`` and of its descendants: ``(own, descendants, live descendants)``, ``own`` and
+    ``descendants`` each ``(resident, proportional)`` bytes (zeros once it is gone)."""
+    tree, own, others, count, stack = _children(), (0, 0), (0, 0), 0, [pid]
     page = os.sysconf("SC_PAGE_SIZE")
     while stack:
         current = stack.pop()
         try:
-            with open(f"/proc/{current}/statm") as statm:
-                rss = int(statm.read().split()[1]) * page
+            memory = _process_memory(current, page)
         except OSError:
-            rss = None
+            memory = None
         if current == pid:
-            own = rss or 0
-        elif rss is not None:
-            others, count = others + rss, count + 1
+            own = memory or (0, 0)
+        elif memory is not None:
+            others, count = (others[0] + memory[0], others[1] + memory[1]), count + 1
         stack.extend(tree.get(current, []))
     return own, others, count
 
@@ -170,13 +187,15 @@ def measure(tree, path, settings_options):
                "--settings", json.dumps(settings_options), "--stage-file", str(stage_file)]
     child = subprocess.Popen(command, env=env, cwd=str(tree), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                              text=True)
-    peaks, stage = {}, "start"  # stage -> (total bytes, own, others, count) at its highest total
+    # stage -> (total, own, others, count) in proportional bytes at the stage's highest total; the resident sum too
+    peaks, stage, peak_resident = {}, "start", 0
     while child.poll() is None:
-        own, others, count = tree_rss_bytes(child.pid)
+        own, others, count = tree_memory(child.pid)
         with contextlib.suppress(OSError):
             stage = stage_file.read_text().strip() or stage
-        if own + others > peaks.get(stage, (-1,))[0]:
-            peaks[stage] = (own + others, own, others, count)
+        peak_resident = max(peak_resident, own[0] + others[0])
+        if own[1] + others[1] > peaks.get(stage, (-1,))[0]:
+            peaks[stage] = (own[1] + others[1], own[1], others[1], count)
         time.sleep(0.1)
     errors = child.stderr.read()
     stage_file.unlink(missing_ok=True)
@@ -186,7 +205,8 @@ def measure(tree, path, settings_options):
     out.unlink()
     result["peak_by_stage"] = {name: _peak_entry(*values[1:]) for name, values in peaks.items()}
     result["peak_stage"] = max(peaks, key=lambda name: peaks[name][0]) if peaks else "none"
-    result["peak_rss_gib"] = peaks[result["peak_stage"]][0] / 2 ** 30 if peaks else 0.0
+    result["peak_pss_gib"] = peaks[result["peak_stage"]][0] / 2 ** 30 if peaks else 0.0
+    result["peak_rss_gib"] = peak_resident / 2 ** 30
     return result
 
 
@@ -229,8 +249,8 @@ def _row(label, result):
     times = result["times_s"]
     stages = " ".join(f"{name} {times.get(name, float('nan')):7.1f}" for name in STAGES)
     peak = result.get("peak_by_stage", {}).get(result.get("peak_stage"))
-    where = (f" ({result['peak_stage']}: pipeline {peak['pipeline_gib']:.2f} + {peak['other_processes']} other "
-             f"processes {peak['others_gib']:.2f})") if peak else ""
+    where = (f", proportional {result['peak_pss_gib']:.2f} ({result['peak_stage']}: pipeline {peak['pipeline_gib']:.2f}"
+             f" + {peak['other_processes']} other processes {peak['others_gib']:.2f})") if peak else ""
     return (f"  {label:<14} {stages}  {result['triangle_ms_per_face']:7.1f} ms/face  longest step "
             f"{result['longest_step_s']:6.2f} s ({result['longest_step_stage']})  peak {result['peak_rss_gib']:.2f} GiB"
             f"{where}")
@@ -244,7 +264,11 @@ def _ratio_row(result, reference):
     ms = result["triangle_ms_per_face"] / max(reference["triangle_ms_per_face"], 1e-9)
     step = result["longest_step_s"] / max(reference["longest_step_s"], 1e-9)
     memory = result["peak_rss_gib"] / max(reference["peak_rss_gib"], 1e-9)
-    return f"  {'ratio':<14} {' '.join(ratios)}  {ms:7.2f} ms/face  longest step {step:6.2f}    peak {memory:.2f}"
+    if "peak_pss_gib" in result and "peak_pss_gib" in reference:
+        memory = f"{memory:.2f}, proportional {result['peak_pss_gib'] / max(reference['peak_pss_gib'], 1e-9):.2f}"
+    else:
+        memory = f"{memory:.2f}"
+    return f"  {'ratio':<14} {' '.join(ratios)}  {ms:7.2f} ms/face  longest step {step:6.2f}    peak {memory}"
 
 
 def main(argv=None):
