@@ -409,7 +409,7 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
     # sRGB and darken them, so the result is a float image too (saved as a 16-bit PNG).
     use_float = any(image.is_float for image in sources)
     image = bpy.data.images.new(image_name, resolution, resolution, alpha=use_alpha, float_buffer=use_float)
-    image.pixels.foreach_set(pixels.ravel())
+    image.pixels.foreach_set(_clip_to_unit(pixels).ravel())
     image.update()
     return image
 

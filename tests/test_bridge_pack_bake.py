@@ -120,6 +120,21 @@ def test_objects_sharing_a_material_bake_from_one_copy_of_its_image(monkeypatch)
     assert not [block for block in bpy.data.images if block.name.startswith("perceptual_uv_bake")]
 
 
+def test_a_float_source_beyond_one_bakes_clipped_to_one():
+    texture = np.ones((8, 8, 4))
+    texture[..., :3] = [1.7, 0.25, 2.0]  # linear values beyond 1, as an EXR holds
+    obj = textured_quads([np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)], texture)
+    source = bpy.data.images.new("bright", 8, 8, alpha=True, float_buffer=True)
+    source.pixels.foreach_set(texture.astype(np.float32).ravel())
+    obj.data.materials[0].node_tree.nodes["Image Texture"].image = source
+    obj.data.uv_layers.new(name="Same", do_init=True)
+    image = bake_base_color([obj], source_uv="UVMap", target_uv="Same", resolution=8, margin=2, image_name="c")
+    baked = np.empty(8 * 8 * 4, dtype=np.float32)
+    image.pixels.foreach_get(baked)
+    assert image.is_float
+    np.testing.assert_allclose(baked.reshape(-1, 4)[:, :3], np.tile([1.0, 0.25, 1.0], (64, 1)), atol=1e-6)
+
+
 def test_bake_through_a_quarter_turn_rotates_the_image():
     texture = checker_texture(8)
     square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
