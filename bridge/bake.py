@@ -102,11 +102,8 @@ def _emission_material(created, source_uv, image, constant, channel, target):
 
 
 def _emission_key(image, constant):
-    """What an emission material of :func:`_emission_material` depends on within one bake pass.
-
-    The slots of a bake pass that emit the same image share one material, and with it one raw copy of the image:
-    a copy per slot held a float copy of the image, its packed file and Cycles' texture per object (a tea set
-    of ten objects on one 1k atlas: ten of each)."""
+    """What an emission material of :func:`_emission_material` depends on within one bake pass (the image, or the
+    constant where there is none): slots with the same key share the material and its raw copy of the image."""
     return ("image", image.as_pointer()) if image is not None else ("constant", tuple(constant))
 
 
@@ -171,16 +168,15 @@ def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel,
     """
     if sources is None:
         sources = [_slot_sources(obj) for obj in objects]
-    materials = {}  # one emission material per image or constant, shared by every slot that emits it
 
     def material_for(created, object_index, slot_index, target):
         image, constant = sources[object_index][slot_index]
-        key = _emission_key(image, constant)
-        if key not in materials:
-            materials[key] = _emission_material(created, source_uv, image, constant, channel, target)
-        return materials[key]
+        return _emission_material(created, source_uv, image, constant, channel, target)
 
-    pixels, covered = _bake_pass(objects, material_for, source_uv=source_uv, target_uv=target_uv,
+    def material_key(object_index, slot_index):
+        return _emission_key(*sources[object_index][slot_index])
+
+    pixels, covered = _bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
                                  resolution=resolution, tiles=tiles, bake_type="EMIT",
                                  slots=[len(slot_sources) for slot_sources in sources])
     _fill_footprints(pixels, covered, objects, source_uv=source_uv, target_uv=target_uv, channel=channel,
@@ -189,11 +185,14 @@ def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel,
     return pixels
 
 
-def _bake_pass(objects, material_for, *, source_uv, target_uv, resolution, tiles, bake_type, slots):
+def _bake_pass(objects, material_for, material_key, *, source_uv, target_uv, resolution, tiles, bake_type,
+               slots):
     """One Cycles bake of ``objects`` (proxies in a temporary scene) into (r, r, 4) pixels and the covered texels.
 
-    ``material_for(created, object_index, slot_index, target)`` gives each proxy slot its material, with an
-    Image Texture node holding ``target`` active. ``bake_type`` "EMIT", or "NORMAL" (tangent space: the proxies'
+    ``material_for(created, object_index, slot_index, target)`` gives a proxy slot its material, with an
+    Image Texture node holding ``target`` active; it is called once per value of ``material_key(object_index,
+    slot_index)``, and the slots with equal keys share that material (objects sharing a material would otherwise
+    each hold a copy of its images, and Cycles a texture of each copy). ``bake_type`` "EMIT", or "NORMAL" (tangent space: the proxies'
     active UV map, whose tangents Blender uses, is the target map; the render UV map, which image nodes without
     coordinates read, is ``source_uv``).
     """
@@ -208,7 +207,7 @@ def _bake_pass(objects, material_for, *, source_uv, target_uv, resolution, tiles
         scene.cycles.device = "CPU"
         scene.cycles.samples = 1
         view_layer = scene.view_layers[0]
-        proxies = []
+        proxies, materials = [], {}
         for object_index, obj in enumerate(objects):
             mesh = obj.data.copy()
             created.append(mesh)
@@ -221,7 +220,10 @@ def _bake_pass(objects, material_for, *, source_uv, target_uv, resolution, tiles
             if not mesh.materials:
                 mesh.materials.append(None)
             for slot_index in range(min(slots[object_index], len(mesh.materials))):
-                mesh.materials[slot_index] = material_for(created, object_index, slot_index, target)
+                key = material_key(object_index, slot_index)
+                if key not in materials:
+                    materials[key] = material_for(created, object_index, slot_index, target)
+                mesh.materials[slot_index] = materials[key]
         view_layer.objects.active = proxies[0]
         options = dict(normal_space="TANGENT") if bake_type == "NORMAL" else {}
 
@@ -458,23 +460,23 @@ def _bake_transformed(objects, record, sources, *, source_uv, target_uv, resolut
     copy of its material's own node and coordinates. The texels next to a triangle that Cycles leaves empty are
     covered by the margin (the footprint fill reads untransformed coordinates)."""
     per_slot = [_reading_records(obj, record, source_uv) for obj in objects]
-    materials = {}  # shared by the slots that emit the same image or constant, or read through the same node
 
     def material_for(created, object_index, slot_index, target):
         own = per_slot[object_index][slot_index]
         if own is None:
             image, constant = sources[object_index][slot_index]
-            key = _emission_key(image, constant)
-            if key not in materials:
-                materials[key] = _emission_material(created, source_uv, image, constant, channel, target)
-            return materials[key]
+            return _emission_material(created, source_uv, image, constant, channel, target)
         material = objects[object_index].material_slots[slot_index].material
-        key = ("node", material.as_pointer(), own.nodes[0].name)
-        if key not in materials:
-            materials[key] = _transformed_emission(created, material, own.nodes[0].name, channel, target)
-        return materials[key]
+        return _transformed_emission(created, material, own.nodes[0].name, channel, target)
 
-    pixels, covered = _bake_pass(objects, material_for, source_uv=source_uv, target_uv=target_uv,
+    def material_key(object_index, slot_index):
+        own = per_slot[object_index][slot_index]
+        if own is None:
+            return _emission_key(*sources[object_index][slot_index])
+        material = objects[object_index].material_slots[slot_index].material
+        return "node", material.as_pointer(), own.nodes[0].name
+
+    pixels, covered = _bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
                                  resolution=resolution, tiles=tiles, bake_type="EMIT",
                                  slots=[len(slot_records) for slot_records in per_slot])
     _extend_margin(pixels, covered, margin)

@@ -117,17 +117,19 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
         corners); the margin extends from these, and texels beyond it are flat (0.5, 0.5, 1).
     """
     reads = [_reads(obj, record, source_uv) for obj in objects]
-    materials = {}  # one copy per material, shared by the slots that use it
+
+    def baked_material(object_index, slot_index):
+        slots = objects[object_index].material_slots
+        return slots[slot_index].material if reads[object_index][slot_index] else None
 
     def material_for(created, object_index, slot_index, target):
-        slots = objects[object_index].material_slots
-        material = slots[slot_index].material if reads[object_index][slot_index] else None
-        key = material.as_pointer() if material is not None else None
-        if key not in materials:
-            materials[key] = _normal_material(created, material, source_uv, target, record.image)
-        return materials[key]
+        return _normal_material(created, baked_material(object_index, slot_index), source_uv, target, record.image)
 
-    pixels, covered = _bake_pass(objects, material_for, source_uv=source_uv, target_uv=target_uv,
+    def material_key(object_index, slot_index):  # one copy per material, shared by the slots that use it
+        material = baked_material(object_index, slot_index)
+        return material.as_pointer() if material is not None else None
+
+    pixels, covered = _bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
                                  resolution=resolution, tiles=tiles, bake_type="NORMAL",
                                  slots=[len(slot_reads) for slot_reads in reads])
     if not has_transform(record):  # the lookups below read the source UV map without the node's transform
