@@ -98,7 +98,8 @@ def compare_solvers(args):
                 problem.reference_gradient[None], problem.centre, problem.ridge, GMSD_C, True)
 
     for _, cost in solvers:  # compile or load the cache
-        loss_stack._evaluate_planes_kernel(*kernel_args(problems[0], small[:1]), cost)
+        loss_stack._evaluate_planes_kernel(*kernel_args(problems[0], small[:1]), cost,
+                                            loss_stack.PEEL_MIN_CELLS)
     for name, params in (("identity", np.array([[0.0, 1.0, 1.0, 0.0]])), ("lambda >= 0.7", near),
                          ("lambda <= 0.5", small)):
         seconds = dict.fromkeys(dict(solvers), 0.0)
@@ -107,7 +108,8 @@ def compare_solvers(args):
             e = {}
             for label, cost in solvers:
                 t0 = time.perf_counter()
-                e[label] = loss_stack._evaluate_planes_kernel(*kernel_args(problem, params), cost)
+                e[label] = loss_stack._evaluate_planes_kernel(*kernel_args(problem, params), cost,
+                                                               loss_stack.PEEL_MIN_CELLS)
                 seconds[label] += time.perf_counter() - t0
             difference = np.abs(e["default"] - e["band/envelope"])
             worst_abs = max(worst_abs, float(difference.max()))

@@ -58,7 +58,7 @@ from .camera import triangle_cameras
 from .charts import texel_areas
 from .gmsd import GMSD_C, _covered_gradient_kernel, _pooled_index, covered_gmsd
 from .loss_planes import StackBatch, StackProblem, texture_luma, texture_planes
-from .loss_stack import _evaluate_planes_kernel
+from .loss_stack import DISSECTION_COST, PEEL_MIN_CELLS, _evaluate_planes_kernel
 from .one_ring import WINDOW_FACE_LIMIT, _window_faces_kernel, one_ring_faces, window_faces
 from .progress import run_generator
 from .raster import _rasterize_kernel, check_mesh, rasterize, sample_bilinear, texel_coordinates
@@ -362,7 +362,7 @@ def _evaluate_kernel(params, points, pooled_index, box, reference, reference_gra
     Called from Python, not from another kernel: a numba caller would inline the kernel into a copy that ran
     ~6 % slower."""
     return _evaluate_planes_kernel(params, points, pooled_index, box, reference[None], reference_gradient[None],
-                                   centre, ridge, c_gmsd, use_cells)[:, 0]
+                                   centre, ridge, c_gmsd, use_cells, DISSECTION_COST, PEEL_MIN_CELLS)[:, 0]
 
 
 # ---------------------------------------------------------------------------------------------------- problems

@@ -405,11 +405,12 @@ class StackProblem:
                 out[:, rows[0]] = lead.evaluate(own)
                 continue
             from .gmsd import GMSD_C
-            from .loss_stack import _evaluate_planes_kernel
+            from .loss_stack import DISSECTION_COST, PEEL_MIN_CELLS, _evaluate_planes_kernel
 
             references, gradients = self._stacked_arrays(rows)
             out[:, list(rows)] = _evaluate_planes_kernel(own, lead.points, lead.pooled_index, lead.box, references,
-                                                         gradients, lead.centre, lead.ridge, GMSD_C, True)
+                                                         gradients, lead.centre, lead.ridge, GMSD_C, True,
+                                                         DISSECTION_COST, PEEL_MIN_CELLS)
         return out
 
     def evaluate(self, params):
