@@ -306,9 +306,9 @@ def _textured_kernel(luma, corners):
 
 
 @njit
-def _prepare_kernel(V, F, uv, draw, origin, right, up, normal, bounds, n, luma, centre, gradient):
-    """Numba: raster, texel points, reference luma, pooled indices, point box and constancy of one triangle."""
-    pixel, face, bary = _rasterize_kernel(V, F, draw, origin, right, up, normal, bounds, n)
+def _plane_kernel(uv, pixel, face, bary, n, luma, centre, gradient):
+    """Numba: texel points, reference luma, pooled indices, point box and constancy of one triangle's view
+    (``pixel, face, bary`` from :func:`.raster._rasterize_kernel`) on one plane."""
     count = pixel.shape[0]
     h, w = luma.shape
     points = np.empty((count, 2))
@@ -346,7 +346,7 @@ def _prepare_kernel(V, F, uv, draw, origin, right, up, normal, bounds, n, luma, 
             break
     if constant:
         constant = _constant_kernel(luma, points, centre)
-    return pixel, points, reference, pooled_index, box, constant
+    return points, reference, pooled_index, box, constant
 
 
 def _points_box(points):
@@ -559,9 +559,9 @@ def _one_ring_draw(ring_offsets, ring, face):
     return np.concatenate([np.array([face], np.int64), neighbours[neighbours != face]]).astype(np.int64)
 
 
-def _centre_texel(uv_face, w, h):
-    """Texel centre nearest to the UV barycentre of one triangle, in texel units."""
-    bary = uv_face.mean(axis=0) * np.array([w, h], dtype=np.float64)
+def _centre_texels(uv_faces, w, h):
+    """Texel centre nearest to the UV barycentre of each triangle (k, 3, 2) -> (k, 2), in texel units."""
+    bary = uv_faces.mean(axis=1) * np.array([w, h], dtype=np.float64)
     return np.floor(bary) + 0.5
 
 
@@ -611,20 +611,12 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
     """
     V, F, uv = _check_inputs(V, F, uv)
     planes = texture_planes(luma)
-    if len(planes) > 1:
-        if adjacency is None:
-            adjacency = one_ring_faces(F, V=V)
-        return StackBatch(tuple(prepare_triangles(V, F, uv, plane, faces, screen_pixels=screen_pixels,
-                                                  adjacency=adjacency, ridge=ridge, view_faces=view_faces)
-                                for plane in planes))
-    luma = planes[0]
     if int(screen_pixels) != screen_pixels or screen_pixels < 2 or screen_pixels % 2:
         raise ValueError(f"screen_pixels must be an even integer >= 2, got {screen_pixels}")
     if not ridge > 0:
         raise ValueError(f"ridge must be positive, got {ridge}")
     one_ring_only = _check_view_faces(view_faces) == "one_ring"
     n = int(screen_pixels)
-    h, w = luma.shape
     faces = np.arange(len(F), dtype=np.int64) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)
     if faces.size and (faces.min() < 0 or faces.max() >= len(F)):
         raise ValueError("faces refers to triangles outside F")
@@ -632,37 +624,44 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
         adjacency = one_ring_faces(F, V=V)
     ring_offsets, ring = adjacency
     cameras = triangle_cameras(V, F, faces, screen_pixels=n)
+    frames = np.stack([cameras.origin, cameras.right, cameras.up, cameras.normal], axis=1)
 
+    # Each view is rastered once; every plane samples its own texel grid at the view's pixels.
     k = len(faces)
-    centres = np.empty((k, 2))
-    gradients = np.empty((k, n // 2, n // 2))
-    constant = np.empty(k, dtype=bool)
-    boxes = np.zeros((k, 4))
-    pixels, points, references, pooled = [], [], [], []
+    shapes = [plane.shape for plane in planes]
+    centres = [_centre_texels(uv[faces], w, h) for h, w in shapes]
+    gradients = [np.empty((k, n // 2, n // 2)) for _ in planes]
+    constant = [np.empty(k, dtype=bool) for _ in planes]
+    boxes = [np.zeros((k, 4)) for _ in planes]
+    points, references, pooled = [[] for _ in planes], [[] for _ in planes], [[] for _ in planes]
+    pixels = []
     offsets = np.zeros(k + 1, np.int64)
     empty_draw = np.zeros(0, np.int64)
     stamp = np.zeros(len(F), np.int64)
     for row, f in enumerate(faces):
-        centres[row] = _centre_texel(uv[f], w, h)
         draw = empty_draw
         if cameras.valid[row] and one_ring_only:
             draw = _one_ring_draw(ring_offsets, ring, int(f))
         elif cameras.valid[row]:
-            frame = np.stack([cameras.origin[row], cameras.right[row], cameras.up[row], cameras.normal[row]])
-            draw = _window_faces_kernel(V, F, ring_offsets, ring, int(f), frame, cameras.bounds[row],
+            draw = _window_faces_kernel(V, F, ring_offsets, ring, int(f), frames[row], cameras.bounds[row],
                                         WINDOW_FACE_LIMIT, stamp, row + 1)
-        pixel, point, reference, pooled_index, boxes[row], constant[row] = _prepare_kernel(
-            V, F, uv, draw, cameras.origin[row], cameras.right[row], cameras.up[row], cameras.normal[row],
-            cameras.bounds[row], n, luma, centres[row], gradients[row])
+        pixel, face, bary = _rasterize_kernel(V, F, draw, cameras.origin[row], cameras.right[row],
+                                              cameras.up[row], cameras.normal[row], cameras.bounds[row], n)
+        for q, plane in enumerate(planes):
+            point, reference, pooled_index, boxes[q][row], constant[q][row] = _plane_kernel(
+                uv, pixel, face, bary, n, plane, centres[q][row], gradients[q][row])
+            points[q].append(point)
+            references[q].append(reference)
+            pooled[q].append(pooled_index)
         pixels.append(pixel)
-        points.append(point)
-        references.append(reference)
-        pooled.append(pooled_index)
         offsets[row + 1] = offsets[row] + len(pixel)
     cat = (lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape))
-    return TriangleBatch(faces, n, (h, w), offsets, centres, cat(pixels, (0,)).astype(np.int64),
-                         cat(points, (0, 2)), cat(references, (0,)), gradients, texel_areas(uv[faces], w, h),
-                         constant, float(ridge), cat(pooled, (0,)).astype(np.int64), boxes)
+    pixel = cat(pixels, (0,)).astype(np.int64)
+    batches = tuple(TriangleBatch(faces, n, (h, w), offsets, centres[q], pixel, cat(points[q], (0, 2)),
+                                  cat(references[q], (0,)), gradients[q], texel_areas(uv[faces], w, h), constant[q],
+                                  float(ridge), cat(pooled[q], (0,)).astype(np.int64), boxes[q])
+                    for q, (h, w) in enumerate(shapes))
+    return StackBatch(batches) if len(batches) > 1 else batches[0]
 
 
 def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE,

@@ -337,3 +337,23 @@ def test_each_evaluation_enters_the_compiled_kernel_without_numba_matching_types
     assert matched_in_python == []
     np.testing.assert_array_equal(again[0], expected[0])
     np.testing.assert_array_equal(again[1], expected[1])
+
+
+def test_a_stack_rasters_each_view_once_for_all_its_planes(scene, monkeypatch):
+    V, F, uv, detail, other, _ = scene
+    half = detail[::2, ::2].copy()
+    faces = [CENTRE_FACE, 3]
+    alone = [loss.prepare_triangles(V, F, uv, plane, faces) for plane in (detail, other, half)]
+    rastered = []
+    raster = loss._rasterize_kernel
+
+    def count(*args):
+        rastered.append(args[2].shape[0])
+        return raster(*args)
+
+    monkeypatch.setattr(loss, "_rasterize_kernel", count)
+    stack = loss.prepare_triangles(V, F, uv, [detail, other, half], faces)
+    assert len(rastered) == len(faces)
+    for batch, single in zip(stack.planes, alone):  # each plane as if prepared on its own
+        for field in ("pixel", "points", "reference", "reference_gradient", "centre", "is_constant", "box"):
+            np.testing.assert_array_equal(getattr(batch, field), getattr(single, field))
