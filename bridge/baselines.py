@@ -360,7 +360,7 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     face_chart = topology.face_chart
     if (weights, formulation, rotation_scale) == ("perceptual", "perceptual", None):
         fit = fit_charts(F, uv, params, *triangles.fit_weights(floor=weight_floor),
-                         measure=lambda new_uv: losses_at(V, F, uv, planes, new_uv, workers=workers),
+                         measure=lambda fits: losses_at(V, F, uv, planes, np.stack(fits), workers=workers),
                          texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance, stacks=stacks,
                          topology=topology)
         uv_fit, post, fit_losses = fit.uv, _post_counts(fit.restored, fit.angles), fit.losses

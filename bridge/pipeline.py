@@ -387,7 +387,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         from ..core.result_cache import result_key
         from ..core.ssp import iter_ssp_targets
         from ..core.stacks import packing_islands, stacked_charts, stacked_faces
-        from ..core.trianglewise import iter_losses_at, iter_losses_of, iter_optimize_triangles
+        from ..core.trianglewise import deformation_params, iter_losses_of, iter_optimize_triangles
         from .bake import iter_bake_maps
 
         started = time.perf_counter()  # the run's times leave out loading the modules
@@ -456,17 +456,22 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         stage = triangles.iter_fit_targets(uv_in, planes, signal_targets=signal, textured=textured)
         targets = yield from _relay(stage, "mesh", "Setting the mesh-wise fit's targets", time.perf_counter(), step)
         params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
-        stage = iter_losses_of(V, F, uv_in, planes, targets, screen_pixels=settings.screen_pixels,
-                               max_screen_pixels=settings.max_screen_pixels, faces=faces, workers=settings.workers,
-                               scheduler=settings.scheduler)
-        target_losses = yield from _relay(stage, "mesh", "Measuring the loss of the fit's targets", clock, step)
+        target_losses = None
 
-        def measure(uv_new):  # a generator: the fit hands control back while the workers measure
-            losses = np.zeros(m)  # skipped triangles show 0 in the overlay; the report counts optimized ones only
-            losses[faces] = yield from iter_losses_at(V, F, uv_in, planes, uv_new,
-                                                      screen_pixels=settings.screen_pixels,
-                                                      max_screen_pixels=settings.max_screen_pixels, faces=faces,
-                                                      workers=settings.workers, scheduler=settings.scheduler)
+        def measure(fits):  # a generator: the fit hands control back while the workers measure
+            # The targets' losses (for the report) and the two fits' in one pass: each triangle's views are
+            # prepared once for the three.
+            nonlocal target_losses
+            texel_frame = planes[0].shape[::-1]  # the parameters act in the first plane's texels
+            deformations = [deformation_params(uv_in, uv_new, texel_frame)[faces] for uv_new in fits]
+            measured = yield from iter_losses_of(V, F, uv_in, planes, np.stack([targets, *deformations]),
+                                                 screen_pixels=settings.screen_pixels,
+                                                 max_screen_pixels=settings.max_screen_pixels, faces=faces,
+                                                 workers=settings.workers, scheduler=settings.scheduler)
+            target_losses = measured[0]
+            # Skipped triangles show 0 in the overlay; the report counts optimized ones only.
+            losses = np.zeros((len(fits), m))
+            losses[:, faces] = measured[1:]
             return losses
 
         yield step("mesh", 0, 1, "Finding the UV islands that share texels")

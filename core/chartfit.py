@@ -140,8 +140,8 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     It yields once the charts are found; per fit after the solver's set-up and every iteration, before, between
     and after the parts of the post-processing (:func:`finish_charts`: the fold restore's two shared areas, the
     stacks, the chart turns; whole-mesh work that would otherwise share a step with the solver's last iteration
-    and the measurement's start), while ``measure`` runs if it is a generator, and when the fit's losses are in;
-    then once between the two fits' shared areas that the choice compares. A modal operator that calls ``next``
+    and the measurement's start), while ``measure`` (of both fits at once) runs if it is a generator, and when
+    the losses are in; then once between the two fits' shared areas that the choice compares. A modal operator that calls ``next``
     once per timer tick thus never waits for more than one of these parts at a time.
     """
     F = np.asarray(F)
@@ -172,21 +172,24 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
         finishing = _iter_finish_charts(uv, fit.uv, chart, alpha=targets[:, 0], w_R=w_R, texel_scale=texel_scale,
                                         fold_tolerance=fold_tolerance, stacks=stacks)
         fitted, restored, angles = yield from report_while_waiting(finishing, ((index + 1) * steps - 1, 2 * steps))
+        candidates.append((fit, fitted, restored, angles))
         yield (index + 1) * steps - 1, 2 * steps  # and so is the start of the measurement
-        measured = measure(fitted)
-        if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs
-            while True:
-                try:
-                    next(measured)
-                except StopIteration as finished:
-                    measured = finished.value
-                    break
-                yield (index + 1) * steps - 1, 2 * steps
-        losses = np.asarray(measured, dtype=np.float64)
-        if losses.shape != (len(uv),):
-            raise ValueError(f"measure must return one loss per face, shape ({len(uv)},), got {losses.shape}")
-        candidates.append((fit, fitted, restored, angles, losses))
-        yield (index + 1) * steps, 2 * steps
+    # Both fits in one measurement: a loss pass prepares each triangle's views once for the two.
+    measured = measure(tuple(fitted for _, fitted, _, _ in candidates))
+    if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs
+        while True:
+            try:
+                next(measured)
+            except StopIteration as finished:
+                measured = finished.value
+                break
+            yield 2 * steps - 1, 2 * steps
+    losses = np.asarray(measured, dtype=np.float64)
+    if losses.shape != (2, len(uv)):
+        raise ValueError(f"measure must return one loss per face for each of the two fits, shape (2, {len(uv)}), "
+                         f"got {losses.shape}")
+    candidates = [candidate + (fit_losses,) for candidate, fit_losses in zip(candidates, losses)]
+    yield 2 * steps - 1, 2 * steps
 
     (plain, plain_uv, plain_restored, plain_angles, plain_losses), \
         (turned, turned_uv, turned_restored, turned_angles, turned_losses) = candidates
@@ -223,10 +226,12 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
         Eq. 17's weights (``w_S`` as the fit uses it, e.g. with its floor). ``w_R`` weighs the rotation terms
         of the second fit and the chart turns of both.
     measure : callable
-        ``measure(uv_new) -> (m,)`` loss of every triangle under the new UVs (e.g.
-        :func:`.trianglewise.losses_at`; 0 for triangles it need not judge). Called once per fit. It may
-        return a generator instead (e.g. :func:`.trianglewise.iter_losses_at`), whose return value is the
-        losses: the fit yields while it runs, so a long measurement does not hold up a modal operator.
+        ``measure(new_uvs) -> (2, m)``: the loss of every triangle under each of the two fits' new UVs
+        (``new_uvs`` a tuple of two (m, 3, 2) arrays; e.g. :func:`.trianglewise.losses_at` of their stack; 0 for
+        triangles it need not judge). Called once, after both fits, so that a loss pass prepares each triangle's
+        views once for both. It may return a generator instead (e.g. :func:`.trianglewise.iter_losses_at`),
+        whose return value is the losses: the fit yields while it runs, so a long measurement does not hold up
+        a modal operator.
     texel_scale : (2,) array_like of float, optional
         Texels per UV unit of the input texture along u and v, ``(w, h)``: both fits
         (:func:`.meshwise.solve_meshwise`) and the chart turns (:func:`.meshwise.orient_charts`) meet the

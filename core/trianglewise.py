@@ -96,8 +96,8 @@ from .worker_pool import WorkerDiedError, run_chunks
 
 __all__ = ["WorkerDiedError", "LossNotEvaluableError", "LAMBDA_MIN", "MAX_SCREEN_PIXELS", "TriangleOptimum",
            "TrianglewiseResult", "finite_barrier", "sensitivity_weights", "optimize_triangle",
-           "iter_optimize_triangles", "optimize_triangles", "iter_losses_at", "losses_at", "iter_losses_of",
-           "losses_of"]
+           "iter_optimize_triangles", "optimize_triangles", "deformation_params", "iter_losses_at", "losses_at",
+           "iter_losses_of", "losses_of"]
 
 LAMBDA_MIN = 0.1
 _IDENTITY = np.array([0.0, 1.0, 1.0, 0.0])
@@ -420,14 +420,18 @@ def _optimize_chunk(state, faces):
 
 
 def _losses_chunk(state, faces):
-    """Worker body for :func:`losses_at`: E of the given deformation rows."""
+    """Worker body for :func:`losses_at`: E of each face's deformation rows ``params[face]`` (r, 4), every row
+    from the one preparation of the face's views; ``inf`` for a row that is not finite."""
     params = state["options"]["params"]
-    out = np.empty(len(faces))
+    out = np.full((len(faces), params.shape[1]), np.inf)
     for row, (face, problem) in enumerate(zip(faces, _prepared(state, faces))):
-        out[row] = np.inf
-        if np.all(np.isfinite(params[face])):
-            with contextlib.suppress(ArithmeticError, np.linalg.LinAlgError):
-                out[row] = problem.evaluate(params[face])[0]
+        finite = np.flatnonzero(np.all(np.isfinite(params[face]), axis=1))
+        try:
+            out[row, finite] = problem.evaluate(params[face][finite]) if finite.size else ()
+        except (ArithmeticError, np.linalg.LinAlgError):
+            for r in finite:  # the rows that can be evaluated keep their E
+                with contextlib.suppress(ArithmeticError, np.linalg.LinAlgError):
+                    out[row, r] = problem.evaluate(params[face][r:r + 1])[0]
     return np.asarray(faces), out
 
 
@@ -620,16 +624,27 @@ def _params_from_jacobians(J):
     return np.column_stack([alpha, eigenvalues[:, 1], eigenvalues[:, 0], beta])
 
 
-def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
-                   workers=1, chunk_size=64, view_faces="window", scheduler=None):
-    """Generator form of :func:`losses_at`: yields ``(done, total)`` faces (again every
-    :data:`.worker_pool.WAIT_SECONDS` while workers compute), returns the losses."""
-    V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
+def deformation_params(uv, new_uv, texel_scale):
+    """Each triangle's deformation from ``uv`` to ``new_uv`` as Eq. 13's ``(alpha, lambda1, lambda2, beta)``.
+
+    Parameters
+    ----------
+    uv, new_uv : (m, 3, 2) array_like of float64
+        Input and new per-corner UVs in the input's UV units.
+    texel_scale : (2,) array_like of float
+        Texels per UV unit ``(w, h)`` of the texture the parameters act on (the first plane's for a stack).
+
+    Returns
+    -------
+    (m, 4) float64 ndarray
+        The affine map's Jacobian in texels as rotation and stretch (the translation ignored, as in Eq. 14);
+        ``inf`` rows where the new triangle is flipped or degenerate, or the input one degenerate.
+    """
+    uv = np.asarray(uv, dtype=np.float64)
     new_uv = np.asarray(new_uv, dtype=np.float64)
     if new_uv.shape != uv.shape:
         raise ValueError(f"new_uv must have the shape of uv {uv.shape}, got {new_uv.shape}")
-    h, w = luma[0].shape  # the parameters' texel frame: the first plane's (:mod:`.loss_planes`)
-    scale = np.array([w, h], dtype=np.float64)
+    scale = np.asarray(texel_scale, dtype=np.float64)
     old_edges = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=-1) * scale[:, None]
     new_edges = np.stack([new_uv[:, 1] - new_uv[:, 0], new_uv[:, 2] - new_uv[:, 0]], axis=-1) * scale[:, None]
     old_det = np.linalg.det(old_edges)
@@ -637,11 +652,26 @@ def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixel
     J = np.zeros_like(old_edges)
     J[valid] = new_edges[valid] @ inverse_2x2(old_edges[valid])
     valid &= np.linalg.det(J) > 0
-    params = np.full((len(F), 4), np.inf)
+    params = np.full((len(uv), 4), np.inf)
     if valid.any():
         params[valid] = _params_from_jacobians(J[valid])
-    return (yield from _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers,
-                                    chunk_size, view_faces, scheduler))
+    return params
+
+
+def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
+                   workers=1, chunk_size=64, view_faces="window", scheduler=None):
+    """Generator form of :func:`losses_at`: yields ``(done, total)`` faces (again every
+    :data:`.worker_pool.WAIT_SECONDS` while workers compute), returns the losses."""
+    V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
+    new_uv = np.asarray(new_uv, dtype=np.float64)
+    if new_uv.shape[-3:] != uv.shape or new_uv.ndim not in (3, 4):
+        raise ValueError(f"new_uv must have the shape of uv {uv.shape}, or (r, *{uv.shape}) for r maps, got "
+                         f"{new_uv.shape}")
+    h, w = luma[0].shape  # the parameters' texel frame: the first plane's (:mod:`.loss_planes`)
+    params = np.stack([deformation_params(uv, one, (w, h)) for one in new_uv.reshape((-1,) + uv.shape)], axis=1)
+    losses = yield from _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers,
+                                     chunk_size, view_faces, scheduler)
+    return losses.T if new_uv.ndim == 4 else losses[:, 0]
 
 
 def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
@@ -656,8 +686,9 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
     ----------
     V, F, uv, luma
         As in :func:`optimize_triangles` (``uv`` the input UVs the texture belongs to).
-    new_uv : (m, 3, 2) array_like
-        New UVs per corner in the input's UV units (e.g. the mesh-wise result before packing).
+    new_uv : (m, 3, 2) or (r, m, 3, 2) array_like
+        New UVs per corner in the input's UV units (e.g. the mesh-wise result before packing), or ``r`` such
+        maps, measured in one pass: each triangle's views are prepared once for all of them.
     screen_pixels, max_screen_pixels : int, optional
         The views, as in :func:`optimize_triangles`.
     faces : (k,) array_like of int, optional
@@ -669,8 +700,9 @@ def losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixels=MAX
 
     Returns
     -------
-    (k,) ndarray
-        E per face; ``inf`` where the new triangle is flipped or degenerate, or the input one degenerate.
+    (k,) or (r, k) ndarray
+        E per face (per map); ``inf`` where the new triangle is flipped or degenerate, or the input one
+        degenerate.
     """
     return run_generator(iter_losses_at(V, F, uv, luma, new_uv, screen_pixels=screen_pixels,
                                         max_screen_pixels=max_screen_pixels, faces=faces, workers=workers,
@@ -683,12 +715,15 @@ def iter_losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixel
     :data:`.worker_pool.WAIT_SECONDS` while workers compute), returns the losses."""
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
     params = np.asarray(params, dtype=np.float64)
-    if params.shape != (len(faces), 4):
-        raise ValueError(f"params must have shape {(len(faces), 4)}, a row per face, got {params.shape}")
-    every = np.full((len(F), 4), np.inf)
-    every[faces] = params
-    return (yield from _iter_losses(V, F, uv, luma, every, faces, screen_pixels, max_screen_pixels, workers,
-                                    chunk_size, view_faces, scheduler))
+    if params.shape[-2:] != (len(faces), 4) or params.ndim not in (2, 3):
+        raise ValueError(f"params must have shape {(len(faces), 4)}, a row per face, or (r, {len(faces)}, 4) "
+                         f"for r deformations of each, got {params.shape}")
+    rows = params.reshape(-1, len(faces), 4)
+    every = np.full((len(F), len(rows), 4), np.inf)
+    every[faces] = rows.transpose(1, 0, 2)
+    losses = yield from _iter_losses(V, F, uv, luma, every, faces, screen_pixels, max_screen_pixels, workers,
+                                     chunk_size, view_faces, scheduler)
+    return losses.T if params.ndim == 3 else losses[:, 0]
 
 
 def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX_SCREEN_PIXELS, faces=None,
@@ -699,15 +734,16 @@ def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX
     ----------
     V, F, uv, luma
         As in :func:`optimize_triangles`.
-    params : (k, 4) array_like
-        ``(alpha, lambda1, lambda2, beta)`` per face of ``faces`` (Eq. 13-14).
+    params : (k, 4) or (r, k, 4) array_like
+        ``(alpha, lambda1, lambda2, beta)`` per face of ``faces`` (Eq. 13-14), or ``r`` deformations of each,
+        measured in one pass (each triangle's views prepared once).
     screen_pixels, max_screen_pixels, faces, workers, chunk_size, view_faces
         As in :func:`losses_at`.
 
     Returns
     -------
-    (k,) ndarray
-        E per face; ``inf`` where a row of ``params`` is not finite or E cannot be evaluated.
+    (k,) or (r, k) ndarray
+        E per face (per deformation); ``inf`` where a row of ``params`` is not finite or E cannot be evaluated.
     """
     return run_generator(iter_losses_of(V, F, uv, luma, params, screen_pixels=screen_pixels,
                                         max_screen_pixels=max_screen_pixels, faces=faces, workers=workers,
@@ -716,13 +752,13 @@ def losses_of(V, F, uv, luma, params, *, screen_pixels=64, max_screen_pixels=MAX
 
 def _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers, chunk_size,
                  view_faces="window", scheduler=None):
-    """E of ``params`` (m, 4), a row per face of the mesh, at ``faces``, in worker processes; yields
-    ``(done, total)`` faces and returns the losses."""
+    """E of ``params`` (m, r, 4), ``r`` rows per face of the mesh, at ``faces``, in worker processes; yields
+    ``(done, total)`` faces and returns the (k, r) losses."""
     done = 0
     yield done, len(faces)
     state = yield from report_while_waiting(_iter_state(V, F, uv, luma, faces, screen_pixels, max_screen_pixels,
-                                                        {"params": params[:, None, :]}, view_faces), (done, len(faces)))
-    out = np.empty(len(faces))
+                                                        {"params": params}, view_faces), (done, len(faces)))
+    out = np.empty((len(faces), params.shape[1]))
     row_of = {int(face): row for row, face in enumerate(faces)}
     with contextlib.closing(run_chunks(_losses_chunk, state, faces, workers=int(workers),
                                        chunk_size=int(chunk_size), scheduler=scheduler)) as chunks:

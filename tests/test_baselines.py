@@ -265,7 +265,7 @@ def test_finish_charts_is_the_post_processing_of_ours(spot):
     targets = np.column_stack([rng.uniform(-0.6, 0.6, m), np.full(m, 0.8), np.full(m, 1.2), np.zeros(m)])
     w_R, w_S = rng.uniform(0.5, 1.0, m), np.ones(m)
     # equal losses: every chart keeps the fit without rotation terms
-    fit = fit_charts(F, uv, targets, w_R, w_S, measure=lambda new: np.zeros(m), max_iterations=3)
+    fit = fit_charts(F, uv, targets, w_R, w_S, measure=lambda fits: np.zeros((2, m)), max_iterations=3)
     assert not fit.rotation_fit.any()
     finished, restored, angles = finish_charts(uv, fit.fits[0].uv, chart, alpha=targets[:, 0], w_R=w_R)
     np.testing.assert_allclose(finished, fit.uv, atol=1e-12)

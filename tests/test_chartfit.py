@@ -24,11 +24,17 @@ def _angle_error(J, alpha=TARGETS[:, 0]):
     return np.abs(np.mod(angle + np.pi / 4, np.pi / 2) - np.pi / 4)
 
 
-def _chart_loss(new_uv):
+def _chart_loss_of(new_uv):
     """Chart 0 is judged by anisotropy (sigma1 / sigma2 - 1), chart 1 by the angle error to the targets."""
     J = _jacobians(new_uv)
     sigma = np.linalg.svd(J, compute_uv=False)
     return np.where(np.arange(4) < 2, sigma[:, 0] / sigma[:, 1] - 1, _angle_error(J))
+
+
+def _chart_loss(fits):
+    """``fit_charts``'s measure: :func:`_chart_loss_of` of each of the two fits."""
+    assert len(fits) == 2
+    return np.stack([_chart_loss_of(new_uv) for new_uv in fits])
 
 
 def test_each_chart_keeps_the_fit_its_losses_prefer():
@@ -43,7 +49,7 @@ def test_each_chart_keeps_the_fit_its_losses_prefer():
     np.testing.assert_allclose(_angle_error(J[:2], TARGETS[:2, 0]), np.pi / 16, atol=1e-6)
     # Chart 1 kept the bent fit: its angle errors are below the pi/16 each that the similarity leaves at best.
     assert np.all(fit.losses[2:] < np.pi / 16 - 0.05)
-    np.testing.assert_allclose(fit.losses, _chart_loss(fit.uv), atol=1e-12)
+    np.testing.assert_allclose(fit.losses, _chart_loss_of(fit.uv), atol=1e-12)
     assert fit.flipped == 0 and fit.restored.size == 0 and len(fit.fits) == 2
     done = [d for d, _ in calls]
     assert done == sorted(done) and calls[-1][0] == calls[-1][1]
@@ -51,7 +57,9 @@ def test_each_chart_keeps_the_fit_its_losses_prefer():
 
 def test_a_measure_of_the_wrong_shape_is_refused():
     with pytest.raises(ValueError, match="one loss per face"):
-        fit_charts(F, UV, TARGETS, WEIGHTS, WEIGHTS, measure=lambda new_uv: np.zeros(3))
+        fit_charts(F, UV, TARGETS, WEIGHTS, WEIGHTS, measure=lambda fits: np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="each of the two fits"):  # one fit's losses only
+        fit_charts(F, UV, TARGETS, WEIGHTS, WEIGHTS, measure=lambda fits: _chart_loss_of(fits[0]))
     with pytest.raises(ValueError, match="targets"):
         fit_charts(F, UV, TARGETS[:, :3], WEIGHTS, WEIGHTS, measure=_chart_loss)
     with pytest.raises(ValueError, match="topology does not belong"):

@@ -166,10 +166,13 @@ def _fit_error(alpha, lambda1, lambda2, beta):
     """A ``measure`` for :func:`fit_charts`: Eq. 15's residual in texels, ``min_k |J - R(k pi/2) R S|^2``."""
     R, S = jacobian(_targets(alpha, lambda1, lambda2, beta))
 
-    def measure(uv_new):
+    def error(uv_new):
         J = _texel_jacobians(uv_new)
         return np.min([((J - rotation(np.full(M, k * np.pi / 2)) @ R @ S) ** 2).sum(axis=(1, 2))
                        for k in range(4)], axis=0)
+
+    def measure(fits):
+        return np.stack([error(uv_new) for uv_new in fits])
 
     return measure
 

@@ -184,7 +184,7 @@ def test_the_largest_view_reaches_both_triangle_wise_calls(registered, spot_obj,
             return function(*args, **kwargs)
         return wrapper
 
-    names = ("iter_optimize_triangles", "iter_losses_of", "iter_losses_at")
+    names = ("iter_optimize_triangles", "iter_losses_of")  # the optimization; the targets' and fits' losses
     for name in names:
         monkeypatch.setattr(trianglewise, name, recording(getattr(trianglewise, name)))
     obj = spot_patch(spot_obj, above=1.0)

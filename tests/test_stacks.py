@@ -74,12 +74,10 @@ def test_the_charts_of_a_stack_keep_the_same_fit():
     targets = np.tile([[0.0, 0.5, 0.5, 0.0], [np.pi / 8, 0.5, 0.5, 0.0]], (2, 1))
     weights = np.full(4, 1e-3)
 
-    def preferences():  # the fit measures the plain fit first, then the one with rotation terms
-        calls = []
-
-        def measure(new_uv):
-            calls.append(new_uv)
-            return np.array([0.0, 0.0, 1.0, 1.0]) if len(calls) == 2 else np.array([5.0, 5.0, 0.0, 0.0])
+    def preferences():  # the fit measures the plain fit and the one with rotation terms, in that order
+        def measure(fits):
+            assert len(fits) == 2
+            return np.array([[5.0, 5.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0]])
         return measure
 
     stack = stacked_charts(uv, np.repeat([0, 1], 2))

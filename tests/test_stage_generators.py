@@ -61,18 +61,18 @@ def test_fit_charts_drives_a_generator_measure_to_the_same_result():
     weights = np.full(8, 1e-3)
     calls = []
 
-    def measure(new_uv):
-        return tw.losses_at(V, F, uv, texture(), new_uv)
+    def measure(fits):
+        return tw.losses_at(V, F, uv, texture(), np.stack(fits))
 
-    def measure_stepwise(new_uv):
+    def measure_stepwise(fits):
         calls.append(len(calls))
-        return (yield from tw.iter_losses_at(V, F, uv, texture(), new_uv, chunk_size=2))
+        return (yield from tw.iter_losses_at(V, F, uv, texture(), np.stack(fits), chunk_size=2))
 
     plain = fit_charts(F, uv, targets, weights, weights, measure=measure)
     steps = []
     stepwise = run_generator(iter_fit_charts(F, uv, targets, weights, weights, measure=measure_stepwise),
                              lambda *step: steps.append(step))
-    assert calls == [0, 1]  # once per fit
+    assert calls == [0]  # once, for both fits
     np.testing.assert_array_equal(stepwise.uv, plain.uv)
     np.testing.assert_array_equal(stepwise.losses, plain.losses)
     total = steps[-1][1]
@@ -139,9 +139,9 @@ def test_fit_charts_gives_the_chart_finish_steps_of_its_own(monkeypatch):
         events.append("finished")
         return result
 
-    def measure(new_uv):
+    def measure(fits):
         events.append("measure")
-        return tw.losses_at(V, F, uv, texture(), new_uv)
+        return tw.losses_at(V, F, uv, texture(), np.stack(fits))
 
     solve = chartfit.iter_solve_meshwise
 
@@ -161,8 +161,9 @@ def test_fit_charts_gives_the_chart_finish_steps_of_its_own(monkeypatch):
         assert events[at - 2:at] == ["solved", ((index + 1) * steps - 1, 2 * steps)]  # a yield before the finish
         # the fold restore yields after each of its two shared areas (no stacks here: the turns follow)
         assert events[at + 1:end] == [((index + 1) * steps - 1, 2 * steps)] * 2
-        assert events[end + 1] == ((index + 1) * steps - 1, 2 * steps)  # and one between it and the measurement
-        assert events[end + 2] == "measure"
+        assert events[end + 1] == ((index + 1) * steps - 1, 2 * steps)  # and one between it and what follows:
+        assert events[end + 2] == ("measure" if index == 1 else (steps, 2 * steps))  # the next fit, the measurement
+    assert events.count("measure") == 1  # both fits in one measurement
     assert events[-1] == (2 * steps, 2 * steps)
     np.testing.assert_array_equal(fit.uv, fit_charts(F, uv, targets, weights, weights, measure=measure,
                                                      max_iterations=3).uv)

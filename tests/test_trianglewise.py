@@ -274,6 +274,33 @@ def test_losses_at_equals_problem_loss_of_the_jacobian():
     assert got == pytest.approx(expected, rel=1e-9, abs=1e-12)
 
 
+def test_several_maps_are_measured_in_one_pass_each_as_if_alone(monkeypatch):
+    # The pipeline measures the fit's targets and both fits at once: every triangle is prepared once for all of
+    # them, and each row is what its own pass gives, bit for bit (a flipped triangle in one map only: inf there).
+    V, F, uv = grid_mesh(cells=3)
+    planes = [_smooth_texture(), _stripes(4)]
+    centre = uv.mean(axis=1, keepdims=True)
+    maps = np.stack([centre + 0.6 * (uv - centre), centre + 0.9 * (uv - centre)[..., ::-1] * [1, -1]])
+    maps[1, 4] = maps[1, 4][[0, 2, 1]]
+    faces = [2, 4, 7]
+    alone = np.stack([tw.losses_at(V, F, uv, planes, one, faces=faces) for one in maps])
+    prepared = []
+    prepare = tw.prepare_triangles
+
+    def count(V, F, uv, luma, faces, **options):
+        prepared.extend(faces)
+        return prepare(V, F, uv, luma, faces, **options)
+
+    monkeypatch.setattr(tw, "prepare_triangles", count)
+    together = tw.losses_at(V, F, uv, planes, maps, faces=faces)
+    assert sorted(prepared) == faces
+    np.testing.assert_array_equal(together, alone)
+    assert np.isinf(together[1, 1]) and np.isfinite(together[0]).all() and (together[0] > 0).all()
+    params = np.stack([tw.deformation_params(uv, one, (SIZE, SIZE))[faces] for one in maps])
+    np.testing.assert_array_equal(tw.losses_of(V, F, uv, planes, params, faces=faces), alone)
+    np.testing.assert_array_equal(tw.losses_of(V, F, uv, planes, params[0], faces=faces), alone[0])
+
+
 def test_triangles_spanning_many_texels_are_seen_at_one_pixel_per_texel():
     # Two triangles of the unit square over a whole 256 x 256 texture: sqrt(2) * 256 = 362 texels across App.
     # A's window, so the view grows to the 256 px maximum; losses_at must measure E on that view.
