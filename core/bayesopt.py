@@ -202,22 +202,28 @@ def _log_likelihood_numpy(X, y, log_length, log_noise, periodic):
 def _append_rows_numba(V, squares, L, X, start, stop, C, first, last, inv_length, periodic):
     """Rows ``start..stop-1`` of ``V = L^-1 K(X, C)`` for columns ``first..last-1``; squares accumulated.
 
-    Row ``p`` needs rows ``0..p-1`` (forward substitution): O(p) per entry.
+    Row ``p`` needs rows ``0..p-1`` (forward substitution): O(p) per entry. The substitution runs along rows
+    of ``V`` (contiguous); each entry's operations keep their order.
     """
     d = C.shape[1]
     for p in range(start, stop):
+        row = V[p]
         for j in range(first, last):
             r2 = 0.0
             for k in range(d):
                 t = _scaled_difference(X[p, k], C[j, k], inv_length[k], periodic[k])
                 r2 += t * t
             r = math.sqrt(5.0 * r2)
-            s = (1.0 + r + r * r / 3.0) * math.exp(-r)
-            for i in range(p):
-                s -= L[p, i] * V[i, j]
-            s /= L[p, p]
-            V[p, j] = s
-            squares[j] += s * s
+            row[j] = (1.0 + r + r * r / 3.0) * math.exp(-r)
+        for i in range(p):
+            factor = L[p, i]
+            earlier = V[i]
+            for j in range(first, last):
+                row[j] -= factor * earlier[j]
+        pivot = L[p, p]
+        for j in range(first, last):
+            row[j] /= pivot
+            squares[j] += row[j] * row[j]
 
 
 def _append_rows_numpy(V, squares, L, X, start, stop, C, first, last, inv_length, periodic):
