@@ -140,9 +140,9 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     It yields once the charts are found; per fit after the solver's set-up and every iteration, before, between
     and after the parts of the post-processing (:func:`finish_charts`: the fold restore's two shared areas, the
     stacks, the chart turns; whole-mesh work that would otherwise share a step with the solver's last iteration
-    and the measurement's start), while ``measure`` (of both fits at once) runs if it is a generator, and when
-    the losses are in; then once between the two fits' shared areas that the choice compares. A modal operator that calls ``next``
-    once per timer tick thus never waits for more than one of these parts at a time.
+    and what follows it), while ``measure`` (of both fits at once) runs if it is a generator, and when the
+    losses are in; then once between the two fits' shared areas that the choice compares. A modal operator that
+    calls ``next`` once per timer tick thus never waits for more than one of these parts at a time.
     """
     F = np.asarray(F)
     uv = np.asarray(uv, dtype=np.float64)
@@ -173,7 +173,7 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                                         fold_tolerance=fold_tolerance, stacks=stacks)
         fitted, restored, angles = yield from report_while_waiting(finishing, ((index + 1) * steps - 1, 2 * steps))
         candidates.append((fit, fitted, restored, angles))
-        yield (index + 1) * steps - 1, 2 * steps  # and so is the start of the measurement
+        yield (index + 1) * steps - 1, 2 * steps  # and so is the start of what follows (next fit, measurement)
     # Both fits in one measurement: a loss pass prepares each triangle's views once for the two.
     measured = measure(tuple(fitted for _, fitted, _, _ in candidates))
     if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs

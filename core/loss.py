@@ -306,19 +306,18 @@ def _textured_kernel(luma, corners):
 
 
 @njit
-def _plane_kernel(uv, pixel, face, bary, n, luma, centre, gradient):
-    """Numba: texel points, reference luma, pooled indices, point box and constancy of one triangle's view
-    (``pixel, face, bary`` from :func:`.raster._rasterize_kernel`) on one plane."""
+def _plane_kernel(uv, pixel, face, bary, n, luma, centre, gradient, points, reference, pooled_index):
+    """Numba: texel points, reference luma and pooled indices (written into ``points``, ``reference``,
+    ``pooled_index``, one row per pixel), point box and constancy of one triangle's view (``pixel, face, bary``
+    from :func:`.raster._rasterize_kernel`) on one plane; returns ``(box, constant)``."""
     count = pixel.shape[0]
     h, w = luma.shape
-    points = np.empty((count, 2))
     for p in range(count):
         f = face[p]
         points[p, 0] = (bary[p, 0] * uv[f, 0, 0] + bary[p, 1] * uv[f, 1, 0] + bary[p, 2] * uv[f, 2, 0]) * w
         points[p, 1] = (bary[p, 0] * uv[f, 0, 1] + bary[p, 1] * uv[f, 1, 1] + bary[p, 2] * uv[f, 2, 1]) * h
-    reference = _sample_luma_kernel(luma, points)
+    reference[:] = _sample_luma_kernel(luma, points)
     m = n // 2
-    pooled_index = np.empty(count, np.int64)
     sums = np.zeros((m + 2) * (m + 2))
     counts = np.zeros((m + 2) * (m + 2))
     box = np.zeros(4)
@@ -346,7 +345,7 @@ def _plane_kernel(uv, pixel, face, bary, n, luma, centre, gradient):
             break
     if constant:
         constant = _constant_kernel(luma, points, centre)
-    return points, reference, pooled_index, box, constant
+    return box, constant
 
 
 def _points_box(points):
@@ -626,18 +625,14 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
     cameras = triangle_cameras(V, F, faces, screen_pixels=n)
     frames = np.stack([cameras.origin, cameras.right, cameras.up, cameras.normal], axis=1)
 
-    # Each view is rastered once; every plane samples its own texel grid at the view's pixels.
+    # Each view is rastered once; every plane samples its own texel grid at the view's pixels, into arrays of
+    # the stack's final size (no per-view parts to join: their copies and the heap they fragment were the
+    # preparation's peak).
     k = len(faces)
-    shapes = [plane.shape for plane in planes]
-    centres = [_centre_texels(uv[faces], w, h) for h, w in shapes]
-    gradients = [np.empty((k, n // 2, n // 2)) for _ in planes]
-    constant = [np.empty(k, dtype=bool) for _ in planes]
-    boxes = [np.zeros((k, 4)) for _ in planes]
-    points, references, pooled = [[] for _ in planes], [[] for _ in planes], [[] for _ in planes]
-    pixels = []
     offsets = np.zeros(k + 1, np.int64)
     empty_draw = np.zeros(0, np.int64)
     stamp = np.zeros(len(F), np.int64)
+    views = []
     for row, f in enumerate(faces):
         draw = empty_draw
         if cameras.valid[row] and one_ring_only:
@@ -645,23 +640,28 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
         elif cameras.valid[row]:
             draw = _window_faces_kernel(V, F, ring_offsets, ring, int(f), frames[row], cameras.bounds[row],
                                         WINDOW_FACE_LIMIT, stamp, row + 1)
-        pixel, face, bary = _rasterize_kernel(V, F, draw, cameras.origin[row], cameras.right[row],
-                                              cameras.up[row], cameras.normal[row], cameras.bounds[row], n)
-        for q, plane in enumerate(planes):
-            point, reference, pooled_index, boxes[q][row], constant[q][row] = _plane_kernel(
-                uv, pixel, face, bary, n, plane, centres[q][row], gradients[q][row])
-            points[q].append(point)
-            references[q].append(reference)
-            pooled[q].append(pooled_index)
-        pixels.append(pixel)
-        offsets[row + 1] = offsets[row] + len(pixel)
-    cat = (lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape))
-    pixel = cat(pixels, (0,)).astype(np.int64)
-    batches = tuple(TriangleBatch(faces, n, (h, w), offsets, centres[q], pixel, cat(points[q], (0, 2)),
-                                  cat(references[q], (0,)), gradients[q], texel_areas(uv[faces], w, h), constant[q],
-                                  float(ridge), cat(pooled[q], (0,)).astype(np.int64), boxes[q])
-                    for q, (h, w) in enumerate(shapes))
-    return StackBatch(batches) if len(batches) > 1 else batches[0]
+        views.append(_rasterize_kernel(V, F, draw, cameras.origin[row], cameras.right[row], cameras.up[row],
+                                       cameras.normal[row], cameras.bounds[row], n))
+        offsets[row + 1] = offsets[row] + len(views[-1][0])
+    pixel = np.concatenate([view[0] for view in views]).astype(np.int64) if k else np.zeros(0, np.int64)
+    batches = []
+    for plane in planes:
+        h, w = plane.shape
+        centres = _centre_texels(uv[faces], w, h)
+        gradients = np.empty((k, n // 2, n // 2))
+        constant = np.empty(k, dtype=bool)
+        boxes = np.zeros((k, 4))
+        points = np.empty((offsets[-1], 2))
+        references = np.empty(offsets[-1])
+        pooled = np.empty(offsets[-1], np.int64)
+        for row, (view_pixel, view_face, view_bary) in enumerate(views):
+            lo, hi = offsets[row], offsets[row + 1]
+            boxes[row], constant[row] = _plane_kernel(uv, view_pixel, view_face, view_bary, n, plane, centres[row],
+                                                      gradients[row], points[lo:hi], references[lo:hi],
+                                                      pooled[lo:hi])
+        batches.append(TriangleBatch(faces, n, (h, w), offsets, centres, pixel, points, references, gradients,
+                                     texel_areas(uv[faces], w, h), constant, float(ridge), pooled, boxes))
+    return StackBatch(tuple(batches)) if len(batches) > 1 else batches[0]
 
 
 def triangle_problem(V, F, uv, luma, face, *, screen_pixels=64, adjacency=None, ridge=DEFAULT_RIDGE,

@@ -426,8 +426,10 @@ def _losses_chunk(state, faces):
     out = np.full((len(faces), params.shape[1]), np.inf)
     for row, (face, problem) in enumerate(zip(faces, _prepared(state, faces))):
         finite = np.flatnonzero(np.all(np.isfinite(params[face]), axis=1))
+        if not finite.size:
+            continue
         try:
-            out[row, finite] = problem.evaluate(params[face][finite]) if finite.size else ()
+            out[row, finite] = problem.evaluate(params[face][finite])
         except (ArithmeticError, np.linalg.LinAlgError):
             for r in finite:  # the rows that can be evaluated keep their E
                 with contextlib.suppress(ArithmeticError, np.linalg.LinAlgError):
@@ -665,8 +667,8 @@ def iter_losses_at(V, F, uv, luma, new_uv, *, screen_pixels=64, max_screen_pixel
     V, F, uv, luma, faces = _check_mesh(V, F, uv, luma, faces)
     new_uv = np.asarray(new_uv, dtype=np.float64)
     if new_uv.shape[-3:] != uv.shape or new_uv.ndim not in (3, 4):
-        raise ValueError(f"new_uv must have the shape of uv {uv.shape}, or (r, *{uv.shape}) for r maps, got "
-                         f"{new_uv.shape}")
+        raise ValueError(f"new_uv must have the shape of uv {uv.shape}, or that shape after a leading axis of r "
+                         f"maps, got {new_uv.shape}")
     h, w = luma[0].shape  # the parameters' texel frame: the first plane's (:mod:`.loss_planes`)
     params = np.stack([deformation_params(uv, one, (w, h)) for one in new_uv.reshape((-1,) + uv.shape)], axis=1)
     losses = yield from _iter_losses(V, F, uv, luma, params, faces, screen_pixels, max_screen_pixels, workers,
