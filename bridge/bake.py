@@ -192,9 +192,9 @@ def _bake_pass(objects, material_for, material_key, *, source_uv, target_uv, res
     ``material_for(created, object_index, slot_index, target)`` gives a proxy slot its material, with an
     Image Texture node holding ``target`` active; it is called once per value of ``material_key(object_index,
     slot_index)``, and the slots with equal keys share that material (objects sharing a material would otherwise
-    each hold a copy of its images, and Cycles a texture of each copy). ``bake_type`` "EMIT", or "NORMAL" (tangent space: the proxies'
-    active UV map, whose tangents Blender uses, is the target map; the render UV map, which image nodes without
-    coordinates read, is ``source_uv``).
+    each hold a copy of its images, and Cycles a texture of each copy). ``bake_type`` "EMIT", or "NORMAL"
+    (tangent space: the proxies' active UV map, whose tangents Blender uses, is the target map; the render UV map,
+    which image nodes without coordinates read, is ``source_uv``).
     """
     with _temporary_ids() as created:
         target = bpy.data.images.new("perceptual_uv_bake_target", resolution, resolution, alpha=False,
