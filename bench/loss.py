@@ -64,8 +64,7 @@ def _sampled_views(model, count, seed):
     """``(V, F, uv, texture, luma, faces, sizes, rng)``: ``count`` faces of ``model`` drawn at random (sorted) and
     their view sizes as the triangle-wise stage sets them (one pixel per texel, 64-256 px)."""
     from perceptual_uv.core import loss
-    from perceptual_uv.core.camera import texel_matched_pixels
-    from perceptual_uv.core.trianglewise import MAX_SCREEN_PIXELS
+    from perceptual_uv.core.camera import MAX_SCREEN_PIXELS, texel_matched_pixels
 
     V, F, uv, texture = load_any_model(model)
     luma = loss.texture_luma(texture)

@@ -27,13 +27,15 @@ import numpy as np
 from ..core.chartfit import finish_charts, fit_charts
 from ..core.charts import uv_topology
 from ..core.loss import above_bound
+from ..core.loss_passes import iter_fit_losses
 from ..core.loss_planes import PlaneStack
 from ..core.meshwise import solve_meshwise
 from ..core.overlap import FOLD_TOLERANCE
+from ..core.progress import run_generator
 from ..core.result_cache import dataclass_from, save_arrays
 from ..core.ssp import solve_ssp, ssp_targets
 from ..core.stacks import stacked_charts, stacked_faces
-from ..core.trianglewise import losses_at, losses_of, optimize_triangles
+from ..core.trianglewise import optimize_triangles
 from ..core.trianglewise_result import MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
@@ -323,7 +325,7 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         Of :meth:`~core.trianglewise_result.TrianglewiseResult.fit_weights` for one fit; 1 fits Eq. 16's rotation
         targets, 0 leaves them out.
     workers : int, optional
-        Processes measuring E for the default (``core.trianglewise.losses_at``; 0: one per core).
+        Processes measuring E (:func:`core.loss_passes.iter_fit_losses`; 0: one per core).
     min_texels, signal_weight : float, optional
         Of :meth:`~core.trianglewise_result.TrianglewiseResult.fit_targets` (the texel floor and the signal-stretch
         blend; 0 turns each off).
@@ -343,8 +345,9 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     -------
     dict
         Times (s), the post-processing's counts, and ``above_bound``: the fractions of textured triangles whose
-        E (the project's views, :func:`core.trianglewise.losses_at`) exceeds the triangle-wise epsilon at the
-        fit's targets and after the fit (:func:`core.loss.above_bound`), measured after ``mesh`` was timed.
+        E (the project's views, :func:`core.loss_passes.iter_fit_losses`) exceeds the triangle-wise epsilon at
+        the fit's targets and after the fit (:func:`core.loss.above_bound`): for ours measured with the choice
+        between the fits, in ``mesh`` as in the pipeline; for an ablation after ``mesh`` was timed.
     """
     objects = _check(objects, source_uv, name)
     start = time.perf_counter()
@@ -355,12 +358,16 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     signal = ssp_targets(V, F, uv, texture)[0] if signal_weight > 0 else None
     params = triangles.fit_targets(uv, planes, min_texels=min_texels, signal_targets=signal,
                                    signal_weight=signal_weight)
-    fit_losses = None
+    target_losses = fit_losses = None
     topology, stacks = _stacks(F, uv, keep_stacks)
     face_chart = topology.face_chart
     if (weights, formulation, rotation_scale) == ("perceptual", "perceptual", None):
-        fit = fit_charts(F, uv, params, *triangles.fit_weights(floor=weight_floor),
-                         measure=lambda fits: losses_at(V, F, uv, planes, np.stack(fits), workers=workers),
+        def measure(fits):  # the targets' losses and the two fits' in one pass, as the pipeline measures them
+            nonlocal target_losses
+            target_losses, losses = yield from iter_fit_losses(V, F, uv, planes, params, fits, workers=workers)
+            return losses
+
+        fit = fit_charts(F, uv, params, *triangles.fit_weights(floor=weight_floor), measure=measure,
                          texel_scale=texture.shape[1::-1], fold_tolerance=fold_tolerance, stacks=stacks,
                          topology=topology)
         uv_fit, post, fit_losses = fit.uv, _post_counts(fit.restored, fit.angles), fit.losses
@@ -375,9 +382,9 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
         post = _post_counts(restored, angles)
     t_mesh = time.perf_counter() - start
     if fit_losses is None:
-        fit_losses = losses_at(V, F, uv, planes, uv_fit, workers=workers)
-    bound = above_bound(uv, planes, triangles.epsilon, targets=losses_of(V, F, uv, planes, params, workers=workers),
-                        fit=fit_losses)
+        target_losses, (fit_losses,) = run_generator(iter_fit_losses(V, F, uv, planes, params, [uv_fit],
+                                                                     workers=workers))
+    bound = above_bound(uv, planes, triangles.epsilon, targets=target_losses, fit=fit_losses)
     _write(objects, name, uv_fit)
     _pack(objects, name, _face_stack(face_chart, stacks))
     return {"mesh": t_mesh, "total": time.perf_counter() - start, "above_bound": bound, **post}

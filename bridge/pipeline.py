@@ -210,8 +210,8 @@ class _Created:
 _READ_STEPS = 6
 # The stages' modules (relative to this package): their first import in a session loads scipy and numba (about a
 # second).
-_STAGE_MODULES = ("..core.chartfit", "..core.loss", "..core.result_cache", "..core.ssp", "..core.trianglewise",
-                  ".bake")
+_STAGE_MODULES = ("..core.chartfit", "..core.loss", "..core.loss_passes", "..core.result_cache", "..core.ssp",
+                  "..core.trianglewise", ".bake")
 
 
 def _iter_import_stages(step):
@@ -384,10 +384,11 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         from ..core.charts import uv_topology
         from ..core.chartfit import iter_fit_charts
         from ..core.loss import above_bound, iter_textured_triangles
+        from ..core.loss_passes import iter_fit_losses
         from ..core.result_cache import result_key
         from ..core.ssp import iter_ssp_targets
         from ..core.stacks import packing_islands, stacked_charts, stacked_faces
-        from ..core.trianglewise import deformation_params, iter_losses_of, iter_optimize_triangles
+        from ..core.trianglewise import iter_optimize_triangles
         from .bake import iter_bake_maps
 
         started = time.perf_counter()  # the run's times leave out loading the modules
@@ -459,19 +460,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         target_losses = None
 
         def measure(fits):  # a generator: the fit hands control back while the workers measure
-            # The targets' losses (for the report) and the two fits' in one pass: each triangle's views are
-            # prepared once for the three.
+            # The targets' losses (for the report) and the two fits' in one pass; skipped triangles show 0 in
+            # the overlay and the report counts optimized ones only.
             nonlocal target_losses
-            texel_frame = planes[0].shape[::-1]  # the parameters act in the first plane's texels
-            deformations = [deformation_params(uv_in, uv_new, texel_frame)[faces] for uv_new in fits]
-            measured = yield from iter_losses_of(V, F, uv_in, planes, np.stack([targets, *deformations]),
-                                                 screen_pixels=settings.screen_pixels,
-                                                 max_screen_pixels=settings.max_screen_pixels, faces=faces,
-                                                 workers=settings.workers, scheduler=settings.scheduler)
-            target_losses = measured[0]
-            # Skipped triangles show 0 in the overlay; the report counts optimized ones only.
-            losses = np.zeros((len(fits), m))
-            losses[:, faces] = measured[1:]
+            target_losses, losses = yield from iter_fit_losses(
+                V, F, uv_in, planes, targets, fits, faces=faces, screen_pixels=settings.screen_pixels,
+                max_screen_pixels=settings.max_screen_pixels, workers=settings.workers, scheduler=settings.scheduler)
             return losses
 
         yield step("mesh", 0, 1, "Finding the UV islands that share texels")

@@ -20,13 +20,17 @@ import numpy as np
 from .charts import texel_areas
 from .mesh import check_mesh
 
-__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "TriangleCameras", "triangle_cameras", "texel_matched_pixels"]
+__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "MAX_SCREEN_PIXELS", "TriangleCameras", "triangle_cameras",
+           "texel_matched_pixels"]
 
 #: Distance of the eye from the barycentre along ``N`` (Algorithm 1, line 7).
 EYE_DISTANCE = 500.0
 #: Near and far clip distances from the eye (Algorithm 1, line 8).
 CLIP_NEAR = 0.1
 CLIP_FAR = 1000.0
+#: Largest side a view grows to for one pixel per texel (:func:`texel_matched_pixels`); a triangle spanning
+#: more texels across its window is seen minified.
+MAX_SCREEN_PIXELS = 256
 
 
 @dataclass(frozen=True)
@@ -170,7 +174,7 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
     return TriangleCameras(faces, centre, right, up, normal, bounds, int(screen_pixels), valid)
 
 
-def texel_matched_pixels(V, F, uv, texture_shape, faces=None, *, minimum=64, maximum=256):
+def texel_matched_pixels(V, F, uv, texture_shape, faces=None, *, minimum=64, maximum=MAX_SCREEN_PIXELS):
     """Side of each triangle's view: App. A's ``minimum``, grown to one pixel per input texel across the view.
 
     App. A's 64 px window spans the triangle's bounding box whatever its size in texels. A triangle that spans

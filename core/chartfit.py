@@ -227,9 +227,9 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
         of the second fit and the chart turns of both.
     measure : callable
         ``measure(new_uvs) -> (2, m)``: the loss of every triangle under each of the two fits' new UVs
-        (``new_uvs`` a tuple of two (m, 3, 2) arrays; e.g. :func:`.trianglewise.losses_at` of their stack; 0 for
+        (``new_uvs`` a tuple of two (m, 3, 2) arrays; e.g. :func:`.loss_passes.losses_at` of their stack; 0 for
         triangles it need not judge). Called once, after both fits, so that a loss pass prepares each triangle's
-        views once for both. It may return a generator instead (e.g. :func:`.trianglewise.iter_losses_at`),
+        views once for both. It may return a generator instead (e.g. :func:`.loss_passes.iter_losses_at`),
         whose return value is the losses: the fit yields while it runs, so a long measurement does not hold up
         a modal operator.
     texel_scale : (2,) array_like of float, optional

@@ -48,7 +48,7 @@ class OptimizeSettings:
         Side of the per-triangle orthographic view (App. A: 64); a triangle spanning more input texels across
         it gets one pixel per texel, up to ``max_screen_pixels``.
     max_screen_pixels : int
-        Largest side a view grows to (at most 256, ``core.trianglewise.MAX_SCREEN_PIXELS``); equal to
+        Largest side a view grows to (at most 256, ``core.camera.MAX_SCREEN_PIXELS``); equal to
         ``screen_pixels``, every view keeps App. A's fixed size. The time of a view grows with its pixel count,
         so this bounds the triangle-wise stage on large textures, at the price of views coarser than the texels.
     margin : int

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core import loss, loss_stack
+from perceptual_uv.core import loss_passes as lp
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.loss_planes import (NORMAL_LIGHTS, PlaneStack, StackProblem, conjugate_params, loss_planes,
@@ -255,14 +256,14 @@ def test_losses_of_a_stack_are_the_max_of_each_planes(scene):
     faces = np.array([CENTRE_FACE, 7, 50])
     rows = params[:3]
     options = dict(faces=faces, max_screen_pixels=64)
-    each = [tw.losses_of(V, F, uv, p, rows, **options) for p in (detail, other[::2, ::2])]
-    stacked = tw.losses_of(V, F, uv, [detail, np.ascontiguousarray(other[::2, ::2])], rows, **options)
+    each = [lp.losses_of(V, F, uv, p, rows, **options) for p in (detail, other[::2, ::2])]
+    stacked = lp.losses_of(V, F, uv, [detail, np.ascontiguousarray(other[::2, ::2])], rows, **options)
     np.testing.assert_allclose(stacked, np.maximum(*each), rtol=1e-12)
     new_uv = uv.copy()
     new_uv[:, :, 0] = 0.5 + 0.5 * (uv[:, :, 0] - 0.5)  # a shrink along u
-    at = tw.losses_at(V, F, uv, [detail, other], new_uv, **options)
-    np.testing.assert_allclose(at, np.maximum(tw.losses_at(V, F, uv, detail, new_uv, **options),
-                                              tw.losses_at(V, F, uv, other, new_uv, **options)), rtol=1e-12)
+    at = lp.losses_at(V, F, uv, [detail, other], new_uv, **options)
+    np.testing.assert_allclose(at, np.maximum(lp.losses_at(V, F, uv, detail, new_uv, **options),
+                                              lp.losses_at(V, F, uv, other, new_uv, **options)), rtol=1e-12)
 
 
 def test_fit_targets_floor_counts_texels_of_the_densest_textured_plane():

@@ -174,7 +174,7 @@ def test_reading_and_signal_stretch_hand_control_back_step_by_step(registered, s
 
 def test_the_largest_view_reaches_both_triangle_wise_calls(registered, spot_obj, monkeypatch):
     from perceptual_uv.bridge.pipeline import run_to_end
-    from perceptual_uv.core import trianglewise
+    from perceptual_uv.core import loss_passes, trianglewise
 
     seen = {}
 
@@ -184,9 +184,12 @@ def test_the_largest_view_reaches_both_triangle_wise_calls(registered, spot_obj,
             return function(*args, **kwargs)
         return wrapper
 
-    names = ("iter_optimize_triangles", "iter_losses_of")  # the optimization; the targets' and fits' losses
-    for name in names:
-        monkeypatch.setattr(trianglewise, name, recording(getattr(trianglewise, name)))
+    # The optimization; the targets' and fits' losses, and the pass that measures them.
+    calls = ((trianglewise, "iter_optimize_triangles"), (loss_passes, "iter_fit_losses"),
+             (loss_passes, "iter_losses_of"))
+    names = [name for _, name in calls]
+    for module, name in calls:
+        monkeypatch.setattr(module, name, recording(getattr(module, name)))
     obj = spot_patch(spot_obj, above=1.0)
     run_to_end(optimize_objects([obj], OptimizeSettings(**dict(FAST, screen_pixels=16, max_screen_pixels=24))))
     assert seen == dict.fromkeys(names, 24)

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core import loss
+from perceptual_uv.core import loss_passes as lp
 from perceptual_uv.core import trianglewise as tw
-from perceptual_uv.core.camera import triangle_cameras
+from perceptual_uv.core.camera import MAX_SCREEN_PIXELS, triangle_cameras
 from perceptual_uv.core.one_ring import one_ring_faces, window_faces
 from perceptual_uv.core.progress import run_generator
 from perceptual_uv.core.raster import rasterize
@@ -146,17 +147,17 @@ def test_unknown_view_faces_is_rejected(mesh):
     with pytest.raises(ValueError, match="view_faces"):
         tw.optimize_triangles(V, F, uv, texture, faces=[SLIVER], workers=1, view_faces="ring")
     with pytest.raises(ValueError, match="view_faces"):
-        tw.losses_of(V, F, uv, texture, np.array([[0.0, 1.0, 1.0, 0.0]]), faces=[SLIVER], view_faces=None)
+        lp.losses_of(V, F, uv, texture, np.array([[0.0, 1.0, 1.0, 0.0]]), faces=[SLIVER], view_faces=None)
 
 
 def test_fixed_64_pixel_views():
     # App. A's fixed 64 px view: max_screen_pixels = screen_pixels = 64 gives 64 px whatever the texel count.
     V, F, uv = banded_mesh()
     big = np.zeros((2048, 2048))
-    state = run_generator(tw._iter_state(V, F, uv, big, np.arange(len(F)), 64, 64, {}, "one_ring"))
+    state = run_generator(lp._iter_state(V, F, uv, big, np.arange(len(F)), 64, 64, {}, "one_ring"))
     assert np.all(state["view_pixels"] == 64)
     assert state["view_faces"] == "one_ring"
-    grown = run_generator(tw._iter_state(V, F, uv, big, np.arange(len(F)), 64, tw.MAX_SCREEN_PIXELS, {}))
+    grown = run_generator(lp._iter_state(V, F, uv, big, np.arange(len(F)), 64, MAX_SCREEN_PIXELS, {}))
     assert grown["view_pixels"].max() > 64 and grown["view_faces"] == "window"
 
 
@@ -186,10 +187,10 @@ def test_optimize_differs_from_the_default_only_where_the_window_adds_faces(mesh
 
     # The losses of given deformations take the option the same way.
     params = np.tile([0.2, 0.6, 0.8, 0.1], (len(faces), 1))
-    e_ours = tw.losses_of(V, F, uv, texture, params, faces=faces, max_screen_pixels=64)
-    e_paper = tw.losses_of(V, F, uv, texture, params, faces=faces, max_screen_pixels=64, view_faces="one_ring")
+    e_ours = lp.losses_of(V, F, uv, texture, params, faces=faces, max_screen_pixels=64)
+    e_paper = lp.losses_of(V, F, uv, texture, params, faces=faces, max_screen_pixels=64, view_faces="one_ring")
     np.testing.assert_array_equal(e_paper[~added], e_ours[~added])
     assert np.any(e_paper[added] != e_ours[added])
     new_uv = uv.copy()
-    e_at = tw.losses_at(V, F, uv, texture, new_uv, faces=faces, max_screen_pixels=64, view_faces="one_ring")
+    e_at = lp.losses_at(V, F, uv, texture, new_uv, faces=faces, max_screen_pixels=64, view_faces="one_ring")
     assert np.all(e_at < 1e-9)  # the input itself: E at the identity

@@ -10,7 +10,7 @@ def test_defaults_are_the_papers():
 
 
 def test_views_grow_by_default_to_the_core_limit():
-    from perceptual_uv.core.trianglewise import MAX_SCREEN_PIXELS
+    from perceptual_uv.core.camera import MAX_SCREEN_PIXELS
 
     assert OptimizeSettings().max_screen_pixels == MAX_SCREEN_PIXELS == 256
     assert OptimizeSettings(screen_pixels=32, max_screen_pixels=32).max_screen_pixels == 32

@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 
+from perceptual_uv.core import loss_passes as lp
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core import worker_pool
 from perceptual_uv.core.chartfit import fit_charts, iter_fit_charts
@@ -28,17 +29,17 @@ def test_iter_losses_yield_face_counts_and_return_the_losses():
     V, F, uv = grid_mesh()
     new_uv = 0.5 + 0.6 * (uv - 0.5)
     progress = []
-    losses = run_generator(tw.iter_losses_at(V, F, uv, texture(), new_uv, workers=1, chunk_size=3),
+    losses = run_generator(lp.iter_losses_at(V, F, uv, texture(), new_uv, workers=1, chunk_size=3),
                            lambda *step: progress.append(step))
     # the start, the workers' shared state (one step between the view sizes and the one-rings), then each chunk
     assert progress == [(0, 8), (0, 8), (3, 8), (6, 8), (8, 8)]
-    np.testing.assert_array_equal(losses, tw.losses_at(V, F, uv, texture(), new_uv))
+    np.testing.assert_array_equal(losses, lp.losses_at(V, F, uv, texture(), new_uv))
     params = np.tile([0.0, 0.7, 0.6, 0.0], (8, 1))
     progress = []
-    losses = run_generator(tw.iter_losses_of(V, F, uv, texture(), params, workers=1, chunk_size=4),
+    losses = run_generator(lp.iter_losses_of(V, F, uv, texture(), params, workers=1, chunk_size=4),
                            lambda *step: progress.append(step))
     assert progress == [(0, 8), (0, 8), (4, 8), (8, 8)]
-    np.testing.assert_array_equal(losses, tw.losses_of(V, F, uv, texture(), params))
+    np.testing.assert_array_equal(losses, lp.losses_of(V, F, uv, texture(), params))
 
 
 def test_waiting_for_workers_yields_the_same_progress_again(monkeypatch):
@@ -62,11 +63,11 @@ def test_fit_charts_drives_a_generator_measure_to_the_same_result():
     calls = []
 
     def measure(fits):
-        return tw.losses_at(V, F, uv, texture(), np.stack(fits))
+        return lp.losses_at(V, F, uv, texture(), np.stack(fits))
 
     def measure_stepwise(fits):
         calls.append(len(calls))
-        return (yield from tw.iter_losses_at(V, F, uv, texture(), np.stack(fits), chunk_size=2))
+        return (yield from lp.iter_losses_at(V, F, uv, texture(), np.stack(fits), chunk_size=2))
 
     plain = fit_charts(F, uv, targets, weights, weights, measure=measure)
     steps = []
@@ -111,7 +112,7 @@ def test_closing_the_stage_while_its_worker_pool_starts_stops_the_workers(monkey
     V, F, uv = grid_mesh()
     release = _held_pool_start(monkeypatch)
     before = set(multiprocessing.active_children())
-    stage = tw.iter_losses_at(V, F, uv, texture(), 0.5 + 0.6 * (uv - 0.5), workers=2, chunk_size=2)
+    stage = lp.iter_losses_at(V, F, uv, texture(), 0.5 + 0.6 * (uv - 0.5), workers=2, chunk_size=2)
     next(stage)
     next(stage)
     stage.close()  # returns at once; the workers are stopped once they are up
@@ -141,7 +142,7 @@ def test_fit_charts_gives_the_chart_finish_steps_of_its_own(monkeypatch):
 
     def measure(fits):
         events.append("measure")
-        return tw.losses_at(V, F, uv, texture(), np.stack(fits))
+        return lp.losses_at(V, F, uv, texture(), np.stack(fits))
 
     solve = chartfit.iter_solve_meshwise
 

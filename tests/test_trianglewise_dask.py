@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from perceptual_uv.core import loss_passes as lp
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core import worker_pool
 from perceptual_uv.core.progress import run_generator
@@ -27,8 +28,8 @@ def test_chunks_on_a_cluster_give_the_local_results(cluster):
         np.testing.assert_array_equal(getattr(remote, field), getattr(local, field))
     assert progress[0] == (0, 18) and progress[-1] == (18, 18)
     new_uv = 0.5 + 0.7 * (uv - 0.5)
-    losses = run_generator(tw.iter_losses_at(V, F, uv, texture(), new_uv, chunk_size=4, scheduler=cluster))
-    np.testing.assert_array_equal(losses, tw.losses_at(V, F, uv, texture(), new_uv))
+    losses = run_generator(lp.iter_losses_at(V, F, uv, texture(), new_uv, chunk_size=4, scheduler=cluster))
+    np.testing.assert_array_equal(losses, lp.losses_at(V, F, uv, texture(), new_uv))
 
 
 def test_an_unreachable_scheduler_is_a_clear_error(monkeypatch):
