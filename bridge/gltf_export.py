@@ -14,7 +14,7 @@ afterwards and the copies are removed. The user's data is never changed.
 """
 import bpy
 
-from .pipeline import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
+from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
 
 __all__ = ["export_glb", "EXPORT_OPTIONS"]
 

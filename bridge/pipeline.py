@@ -20,13 +20,14 @@ import numpy as np
 from ..core import cost as texel_cost
 from ..core.progress import InThread, RunProgress, format_seconds, report_while_waiting
 from .image_file import image_channels, image_size, iter_read_image, iter_save_or_pack
+from .loss_overlay import write_loss_attributes
 from .material import base_color_image_node
 from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_side, image_stem, iter_loss_planes_of,
                             map_report, map_resolution, material_copies, memory_resolution, read_maps,
                             resolve_source_uv)
 
 __all__ = ["Progress", "STAGE_SHARES", "triangle_results", "PipelineResult", "optimize_objects", "run_to_end",
-           "target_problem", "loss_ramp", "map_resolution", "LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE", "COPY_PROPERTY"]
+           "target_problem", "map_resolution", "COPY_PROPERTY"]
 
 _TRIANGLE_RESULTS = []
 
@@ -41,11 +42,6 @@ def triangle_results():
 
         _TRIANGLE_RESULTS.append(ResultCache(TrianglewiseResult, folder=default_cache_folder()))
     return _TRIANGLE_RESULTS[0]
-
-
-LOSS_ATTRIBUTE = "perceptual_loss"
-LOSS_COLOR_ATTRIBUTE = "perceptual_loss_color"
-# Custom property of a material copy made by a run: the name of the material it was copied from.
 
 
 @dataclasses.dataclass(frozen=True)
@@ -269,47 +265,6 @@ def _iter_read_objects(objects, source_uv, settings, step):
     return image, validated, _notes_for_objects(objects) + list(validated.notes)
 
 
-def loss_ramp(losses, epsilon):
-    """Overlay colours: green at E = 0, yellow at E = epsilon, red from 2 epsilon on.
-
-    Parameters
-    ----------
-    losses : (k,) array_like
-    epsilon : float
-
-    Returns
-    -------
-    (k, 4) float32 ndarray
-        Linear RGBA.
-    """
-    t = np.clip(np.asarray(losses, dtype=np.float64) / (2.0 * epsilon), 0.0, 1.0)
-    rgba = np.ones((len(t), 4), dtype=np.float32)
-    rgba[:, 0] = np.minimum(1.0, 2.0 * t)
-    rgba[:, 1] = np.minimum(1.0, 2.0 - 2.0 * t)
-    rgba[:, 2] = 0.0
-    return rgba
-
-
-def _write_loss_attributes(obj, tri_polygons, losses, epsilon, created):
-    """Per polygon, the largest E of its triangles: a float face attribute, and a colour for the overlay."""
-    mesh = obj.data
-    polygon_loss = np.zeros(len(mesh.polygons), dtype=np.float32)
-    np.maximum.at(polygon_loss, tri_polygons, losses.astype(np.float32))
-    for name in (LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE):
-        if name in mesh.attributes:
-            mesh.attributes.remove(mesh.attributes[name])
-    attribute = mesh.attributes.new(LOSS_ATTRIBUTE, "FLOAT", "FACE")
-    created.attributes.append((mesh, LOSS_ATTRIBUTE))
-    attribute.data.foreach_set("value", polygon_loss)
-    # Colour attributes live on points or corners: every corner of a polygon gets its polygon's colour.
-    loop_totals = np.empty(len(mesh.polygons), dtype=np.int32)
-    mesh.polygons.foreach_get("loop_total", loop_totals)
-    loop_polygon = np.repeat(np.arange(len(mesh.polygons)), loop_totals)
-    colors = mesh.attributes.new(LOSS_COLOR_ATTRIBUTE, "BYTE_COLOR", "CORNER")
-    created.attributes.append((mesh, LOSS_COLOR_ATTRIBUTE))
-    colors.data.foreach_set("color", loss_ramp(polygon_loss, epsilon)[loop_polygon].ravel())
-
-
 def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     """Optimize the UV map of ``objects`` (sharing one base-colour image) and bake every map onto it.
 
@@ -351,7 +306,6 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     Sun et al. 2022: Sec. 4.1 (triangle-wise), Sec. 4.2 and App. B (mesh-wise), Sec. 5.1 (packing with
     translations and 90-degree rotations, resolution from the target cost, Eq. 20-21, or from image memory).
     """
-    from ..core.settings import role_cost
     from .mesh_io import write_uv_layer
 
     objects = list(objects)
@@ -526,23 +480,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                          "texels per surface area (relative texel cost, Eq. 21): the input's islands take "
                          f"{texel_cost.uv_area(uv_in):.0%} of its image. A cost of about "
                          f"{settings.target_cost / reference_cost:.2g} keeps the input's texel density")
-        sides, margins, names = [], [], []
-        for number, record in enumerate(records):
-            override = role_cost(settings.role_costs, record.role)
-            if by_memory:
-                side = sides_by_memory[number]
-            else:
-                side = (resolution if number == 0 and override is None else
-                        map_resolution(resolution, image_side(record.image), image_side(image), role_cost=override,
-                                       reference_cost=reference_cost))
-            sides.append(side)
-            margins.append(0 if settings.margin == 0 else max(1, round(settings.margin * side / resolution)))
-            if number == 0:
-                names.append(settings.image_name or f"{image_stem(image)}_perceptual")
-            elif settings.image_name:
-                names.append(f"{settings.image_name}_{record.role}")
-            else:
-                names.append(f"{image_stem(record.image)}_perceptual")
+        sides, margins, names = _new_images(records, image, resolution, reference_cost, settings, sides_by_memory)
         # In the background process (the modal operator) the generator yields every 0.1 s while Cycles bakes;
         # in this process each map's bake is one step.
         where = " in a background process" if settings.bake_in_background else ""
@@ -564,28 +502,13 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         yield step("loss", 0, 1, "Writing the loss per triangle")
         for obj, rows in zip(objects, per_object):
-            _write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created)
+            write_loss_attributes(obj, mesh.tri_polygons[rows], losses[rows], settings.epsilon, created.attributes)
 
         yield step("loss", 0, 1, "Making the material copies")
         materials = (material_copies(objects, baked, uv_name, source_uv, created) if settings.use_material_copy
                      else [])
-        warnings, maps_report = [], []
-        saved = None
-        for number, result in enumerate(bakes):
-            saving = step("loss", number, len(bakes), f"Saving the {result.record.role.replace('_', ' ')} map "
-                          f"({number + 1}/{len(bakes)})")
-            yield saving
-            # The report's sizes are read before the save: afterwards the image is the PNG's, read again on use.
-            entry = map_report(result, None)
-            path, warning = yield from report_while_waiting(iter_save_or_pack(result.image, output_dir), saving)
-            entry.update(new_image_file=path, file_bytes_after=file_bytes(result.image))
-            if path:
-                created.files.append(path)
-            if warning:
-                warnings.append(warning)
-            if number == 0:
-                saved = path
-            maps_report.append(entry)
+        maps_report, warnings = yield from _iter_save_images(bakes, output_dir, created, step)
+        saved = maps_report[0]["new_image_file"]
         before = sum(entry["raw_bytes_before"] for entry in maps_report)
         after = sum(entry["raw_bytes_after"] for entry in maps_report)
         files_before = [entry["file_bytes_before"] for entry in maps_report]
@@ -666,6 +589,58 @@ def _relay(stage, name, label, started, step, *, message=None):
         yield step(name, done, total, f"{label}: {done}/{total}{left}")
 
 
+
+
+def _new_images(records, image, resolution, reference_cost, settings, sides_by_memory=None):
+    """Side, margin (pixels) and name of each map's new image, in the order of ``records``.
+
+    ``sides_by_memory`` (one per map) when the cost is image memory; else the first map (the loss image
+    ``image``) gets the packing's ``resolution`` and every other map the same relative cost, each relative to
+    its own input size (:func:`.material_copy.map_resolution`), a role's cost (``settings.role_costs``)
+    overriding the run's. Margins scale with the side; names follow ``settings.image_name`` or the input
+    image's.
+    """
+    from ..core.settings import role_cost
+
+    sides, margins, names = [], [], []
+    for number, record in enumerate(records):
+        override = role_cost(settings.role_costs, record.role)
+        if sides_by_memory is not None:
+            side = sides_by_memory[number]
+        else:
+            side = (resolution if number == 0 and override is None else
+                    map_resolution(resolution, image_side(record.image), image_side(image), role_cost=override,
+                                   reference_cost=reference_cost))
+        sides.append(side)
+        margins.append(0 if settings.margin == 0 else max(1, round(settings.margin * side / resolution)))
+        if number == 0:
+            names.append(settings.image_name or f"{image_stem(image)}_perceptual")
+        elif settings.image_name:
+            names.append(f"{settings.image_name}_{record.role}")
+        else:
+            names.append(f"{image_stem(record.image)}_perceptual")
+    return sides, margins, names
+
+
+def _iter_save_images(bakes, output_dir, created, step):
+    """Generator: save (or pack) each baked image, yielding ``step``'s "loss" steps while it writes; returns the
+    report's entry per map (:func:`.material_copy.map_report`, with the file and its bytes) and the warnings.
+    Each saved file goes into ``created.files``, so that a cancelled run deletes it."""
+    warnings, entries = [], []
+    for number, result in enumerate(bakes):
+        saving = step("loss", number, len(bakes), f"Saving the {result.record.role.replace('_', ' ')} map "
+                      f"({number + 1}/{len(bakes)})")
+        yield saving
+        # The report's sizes are read before the save: afterwards the image is the PNG's, read again on use.
+        entry = map_report(result, None)
+        path, warning = yield from report_while_waiting(iter_save_or_pack(result.image, output_dir), saving)
+        entry.update(new_image_file=path, file_bytes_after=file_bytes(result.image))
+        if path:
+            created.files.append(path)
+        if warning:
+            warnings.append(warning)
+        entries.append(entry)
+    return entries, warnings
 
 
 def _memory_side(record, settings):

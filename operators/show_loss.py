@@ -12,7 +12,7 @@ class UV_OT_perceptual_show_loss(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        from ..bridge.pipeline import LOSS_COLOR_ATTRIBUTE
+        from ..bridge.loss_overlay import LOSS_COLOR_ATTRIBUTE
 
         obj = context.active_object
         if obj is None or obj.type != "MESH" or LOSS_COLOR_ATTRIBUTE not in obj.data.color_attributes:
@@ -21,7 +21,7 @@ class UV_OT_perceptual_show_loss(bpy.types.Operator):
         return True
 
     def execute(self, context):
-        from ..bridge.pipeline import LOSS_COLOR_ATTRIBUTE
+        from ..bridge.loss_overlay import LOSS_COLOR_ATTRIBUTE
 
         mesh = context.active_object.data
         mesh.color_attributes.active_color = mesh.color_attributes[LOSS_COLOR_ATTRIBUTE]

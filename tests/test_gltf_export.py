@@ -302,7 +302,7 @@ def test_export_glb_uses_copies_and_leaves_the_scene_as_it_was(empty_scene, tmp_
     from types import SimpleNamespace
 
     from perceptual_uv.bridge.gltf_export import export_glb
-    from perceptual_uv.bridge.pipeline import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
+    from perceptual_uv.bridge.loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
 
     mesh = bpy.data.meshes.new("Box")
     bm = bmesh.new()

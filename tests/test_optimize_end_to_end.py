@@ -6,7 +6,8 @@ bpy = pytest.importorskip("bpy")
 bmesh = pytest.importorskip("bmesh")
 
 import perceptual_uv  # noqa: E402
-from perceptual_uv.bridge.pipeline import LOSS_ATTRIBUTE, optimize_objects  # noqa: E402
+from perceptual_uv.bridge.loss_overlay import LOSS_ATTRIBUTE  # noqa: E402
+from perceptual_uv.bridge.pipeline import optimize_objects  # noqa: E402
 from perceptual_uv.core.cost import relative_cost  # noqa: E402
 from perceptual_uv.core.settings import OptimizeSettings  # noqa: E402
 
