@@ -5,12 +5,10 @@ evaluations. scikit-optimize's ``gp_minimize`` does that exactly but costs ~15 s
 all of it GP overhead. The default engine below keeps the same ingredients (Matern 5/2 kernel with one length
 scale per dimension, expected improvement) and removes the overhead:
 
-- inputs are mapped to the unit cube; the GP works on standardized targets with the signal variance profiled
-  out of the marginal likelihood, so the Cholesky factor ``L`` of ``C + eta I`` depends on inputs only;
-- hyper-parameters (log length scales, log noise ``eta``) are fitted by L-BFGS-B on the exact gradient of the
-  profiled log marginal likelihood, only at a few points of the run (after the initial design, then each time
-  the number of observations doubles);
-- between fits every new observation extends ``L`` by one row (forward substitution, O(n^2));
+- inputs are mapped to the unit cube, where a Gaussian process with incremental Cholesky updates
+  (:mod:`.gaussian_process`) models the objective; its hyper-parameters are fitted only at a few points of the
+  run (after the initial design, then each time the number of observations doubles) and between fits every new
+  observation extends its factor ``L`` by one row;
 - the acquisition is maximized over candidates: a fixed pool of uniform points, whose rows of
   ``V = L^-1 K(X, C)`` are appended one per observation (O(n c)) and recomputed only after a fit, plus fresh
   Gaussian perturbations of the incumbents at three scales each round (they stand in for a local
@@ -19,8 +17,7 @@ scale per dimension, expected improvement) and removes the overhead:
   mean as its fantasy value leaves the mean unchanged and only lowers the variance, so each pick costs one
   O(n c) row update; one numba call selects the whole batch;
 - the objective is called once per round with all ``batch_size`` points (batched evaluation);
-- kernel matrix, Cholesky update, candidate rows, acquisition, batch selection and the likelihood gradient
-  are numba kernels, each with a numpy reference used in the tests.
+- acquisition and batch selection are numba kernels, each with a numpy reference used in the tests.
 
 ``minimize`` is the unconstrained problem (``backend="skopt"`` runs scikit-optimize's ``gp_minimize`` with the
 same budget and start point, the paper's setting). ``minimize_constrained`` solves ``min cost(x)`` subject to
@@ -36,16 +33,13 @@ import dataclasses
 import math
 
 import numpy as np
-import scipy.optimize
 import scipy.stats.qmc
 
 from ._jit import njit
+from .gaussian_process import _GaussianProcess, _append_rows_numba, _leading_dot_numba, _matern52_numpy
 
 __all__ = ["BayesOptResult", "minimize", "minimize_constrained"]
 
-_SQRT5 = math.sqrt(5.0)
-_LOG_LENGTH_BOUNDS = (math.log(0.02), math.log(5.0))
-_LOG_NOISE_BOUNDS = (math.log(1e-6), math.log(1e-1))
 REFIT_ITERATIONS = 20
 
 
@@ -76,184 +70,6 @@ class BayesOptResult:
     y: np.ndarray
     feasible: bool
     evaluations: int
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Kernels: numba versions and the numpy references they are tested against.
-
-
-@njit
-def _scaled_difference(a, b, inv_length, periodic):
-    """Per-dimension difference over length scale; periodic dims (period 1) use the chordal distance."""
-    if periodic:
-        return math.sin(math.pi * (a - b)) / math.pi * inv_length
-    return (a - b) * inv_length
-
-
-@njit
-def _matern52_numba(A, B, inv_length, periodic):
-    na, nb, d = A.shape[0], B.shape[0], A.shape[1]
-    K = np.empty((na, nb))
-    for i in range(na):
-        for j in range(nb):
-            r2 = 0.0
-            for k in range(d):
-                t = _scaled_difference(A[i, k], B[j, k], inv_length[k], periodic[k])
-                r2 += t * t
-            r = math.sqrt(5.0 * r2)
-            K[i, j] = (1.0 + r + r * r / 3.0) * math.exp(-r)
-    return K
-
-
-def _matern52_numpy(A, B, inv_length, periodic):
-    diff = A[:, None, :] - B[None, :, :]
-    diff = np.where(periodic, np.sin(np.pi * diff) / np.pi, diff) * inv_length
-    r = np.sqrt(5.0 * np.sum(diff * diff, axis=-1))
-    return (1.0 + r + r * r / 3.0) * np.exp(-r)
-
-
-@njit
-def _cholesky_append_numba(L, n, k_new, diagonal):
-    """Extend the factor ``L[:n, :n]`` by the row of a new point; returns the new diagonal entry."""
-    for i in range(n):
-        s = k_new[i]
-        for j in range(i):
-            s -= L[i, j] * L[n, j]
-        L[n, i] = s / L[i, i]
-    s = diagonal
-    for j in range(n):
-        s -= L[n, j] * L[n, j]
-    # The noise term keeps the exact value >= eta > 0; the floor only guards rounding.
-    L[n, n] = math.sqrt(max(s, 1e-12))
-    return L[n, n]
-
-
-def _cholesky_append_numpy(L, n, k_new, diagonal):
-    import scipy.linalg
-
-    row = scipy.linalg.solve_triangular(L[:n, :n], k_new, lower=True) if n else np.empty(0)
-    L[n, :n] = row
-    L[n, n] = math.sqrt(max(diagonal - row @ row, 1e-12))
-    return L[n, n]
-
-
-@njit
-def _log_likelihood_numba(X, y, log_length, log_noise, periodic):
-    """Profiled log marginal likelihood and its gradient w.r.t. (log length scales..., log noise)."""
-    n, d = X.shape
-    inv_length = np.exp(-log_length)
-    noise = math.exp(log_noise)
-    scaled = np.empty((n, n, d))
-    Cm = np.empty((n, n))
-    G = np.empty((n, n))  # dk/dr^2-style factor shared by every length-scale derivative
-    for i in range(n):
-        for j in range(n):
-            r2 = 0.0
-            for k in range(d):
-                t = _scaled_difference(X[i, k], X[j, k], inv_length[k], periodic[k])
-                scaled[i, j, k] = t * t
-                r2 += t * t
-            r = math.sqrt(5.0 * r2)
-            e = math.exp(-r)
-            Cm[i, j] = (1.0 + r + r * r / 3.0) * e
-            G[i, j] = 5.0 / 3.0 * (1.0 + r) * e
-        Cm[i, i] += noise
-    L = np.linalg.cholesky(Cm)
-    Linv = np.linalg.inv(L)
-    Cinv = Linv.T @ Linv
-    alpha = Cinv @ y
-    signal = (y @ alpha) / n
-    logdet = 0.0
-    for i in range(n):
-        logdet += math.log(L[i, i])
-    value = -0.5 * n * math.log(signal) - logdet - 0.5 * n * (1.0 + math.log(2.0 * math.pi))
-    # d value / d theta = 1/2 tr((alpha alpha^T / s^2 - C^-1) dC/dtheta)
-    gradient = np.zeros(d + 1)
-    for i in range(n):
-        for j in range(n):
-            a = alpha[i] * alpha[j] / signal - Cinv[i, j]
-            for k in range(d):
-                gradient[k] += 0.5 * a * G[i, j] * scaled[i, j, k]
-        gradient[d] += 0.5 * noise * (alpha[i] * alpha[i] / signal - Cinv[i, i])
-    return value, gradient
-
-
-def _log_likelihood_numpy(X, y, log_length, log_noise, periodic):
-    n, d = X.shape
-    inv_length = np.exp(-log_length)
-    noise = math.exp(log_noise)
-    diff = X[:, None, :] - X[None, :, :]
-    diff = np.where(periodic, np.sin(np.pi * diff) / np.pi, diff) * inv_length
-    scaled = diff * diff
-    r = np.sqrt(5.0 * scaled.sum(-1))
-    C = (1.0 + r + r * r / 3.0) * np.exp(-r) + noise * np.eye(n)
-    L = np.linalg.cholesky(C)
-    Cinv = np.linalg.inv(C)
-    alpha = Cinv @ y
-    signal = y @ alpha / n
-    value = -0.5 * n * np.log(signal) - np.log(np.diag(L)).sum() - 0.5 * n * (1.0 + np.log(2.0 * np.pi))
-    A = np.outer(alpha, alpha) / signal - Cinv
-    dC = (5.0 / 3.0 * (1.0 + r) * np.exp(-r))[:, :, None] * scaled
-    gradient = np.append(0.5 * np.einsum("ij,ijk->k", A, dC), 0.5 * noise * np.trace(A))
-    return value, gradient
-
-
-@njit
-def _append_rows_numba(V, squares, L, X, start, stop, C, first, last, inv_length, periodic):
-    """Rows ``start..stop-1`` of ``V = L^-1 K(X, C)`` for columns ``first..last-1``; squares accumulated.
-
-    Row ``p`` needs rows ``0..p-1`` (forward substitution): O(p) per entry. The substitution runs along rows
-    of ``V`` (contiguous); each entry's operations keep their order.
-    """
-    d = C.shape[1]
-    for p in range(start, stop):
-        row = V[p]
-        for j in range(first, last):
-            r2 = 0.0
-            for k in range(d):
-                t = _scaled_difference(X[p, k], C[j, k], inv_length[k], periodic[k])
-                r2 += t * t
-            r = math.sqrt(5.0 * r2)
-            row[j] = (1.0 + r + r * r / 3.0) * math.exp(-r)
-        for i in range(p):
-            factor = L[p, i]
-            earlier = V[i]
-            for j in range(first, last):
-                row[j] -= factor * earlier[j]
-        pivot = L[p, p]
-        for j in range(first, last):
-            row[j] /= pivot
-            squares[j] += row[j] * row[j]
-
-
-def _append_rows_numpy(V, squares, L, X, start, stop, C, first, last, inv_length, periodic):
-    for p in range(start, stop):
-        k = _matern52_numpy(X[p:p + 1], C[first:last], inv_length, periodic)[0]
-        V[p, first:last] = (k - L[p, :p] @ V[:p, first:last]) / L[p, p]
-        squares[first:last] += V[p, first:last] ** 2
-
-
-@njit
-def _leading_dot_numba(V, w, count):
-    """``V[:len(w), :count].T @ w`` without BLAS (small and frequent: BLAS threads only add latency)."""
-    out = np.zeros(count)
-    for i in range(w.shape[0]):
-        wi = w[i]
-        for j in range(count):
-            out[j] += V[i, j] * wi
-    return out
-
-
-@njit
-def _forward_substitute_numba(L, b):
-    n = b.shape[0]
-    x = np.empty(n)
-    for i in range(n):
-        s = b[i]
-        for j in range(i):
-            s -= L[i, j] * x[j]
-        x[i] = s / L[i, i]
-    return x
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -380,83 +196,6 @@ def _select_batch_numpy(q, X, L, n, noise, C, V, squares, mean, signal, inv_leng
         taken[j] = True
         points = np.vstack([points, C[j]])
     return np.array(chosen)
-
-
-# ----------------------------------------------------------------------------------------------------------
-# The Gaussian process state.
-
-
-class _GaussianProcess:
-    """GP on the unit cube with incremental Cholesky updates (see the module docstring)."""
-
-    def __init__(self, dims, capacity, periodic):
-        self.dims = dims
-        self.periodic = periodic
-        self.X = np.empty((capacity, dims))
-        self.y = np.empty(capacity)
-        self.L = np.zeros((capacity, capacity))
-        self.n = 0
-        self.log_length = np.full(dims, math.log(0.3))
-        self.log_noise = math.log(1e-4)
-        self.offset = 0.0
-        self.scale = 1.0
-        self.w = np.empty(0)
-        self.signal = 1.0
-
-    @property
-    def inv_length(self):
-        return np.exp(-self.log_length)
-
-    def add(self, x, v=None):
-        """Append input ``x`` (target set later); ``v = L^-1 k(X, x)`` when already known."""
-        n = self.n
-        if v is None:
-            k = _matern52_numba(self.X[:n], x[None, :], self.inv_length, self.periodic)[:, 0]
-            _cholesky_append_numba(self.L, n, k, 1.0 + math.exp(self.log_noise))
-        else:
-            self.L[n, :n] = v
-            self.L[n, n] = math.sqrt(max(1.0 + math.exp(self.log_noise) - v @ v, 1e-12))
-        self.X[n] = x
-        self.n = n + 1
-
-    def set_targets(self, y):
-        n = self.n
-        self.y[:n] = y
-        self.offset = float(np.mean(y))
-        spread = float(np.std(y))
-        self.scale = spread if spread > 0 else 1.0
-        standardized = (self.y[:n] - self.offset) / self.scale
-        self.w = _forward_substitute_numba(self.L, standardized)  # reads L[:n, :n] only
-        self.signal = max(float(self.w @ self.w) / n, 1e-12)
-
-    def refactor(self):
-        n = self.n
-        C = _matern52_numba(self.X[:n], self.X[:n], self.inv_length, self.periodic)
-        C[np.diag_indices(n)] += math.exp(self.log_noise)
-        self.L[:n, :n] = np.linalg.cholesky(C)
-
-    def fit(self, *, max_iterations=20):
-        """Maximize the profiled log marginal likelihood over log length scales and log noise."""
-        n = self.n
-        X = np.ascontiguousarray(self.X[:n])
-        y = (self.y[:n] - self.offset) / self.scale
-
-        def negative(theta):
-            value, gradient = _log_likelihood_numba(X, y, theta[:-1], theta[-1], self.periodic)
-            return -value, -gradient
-
-        start = np.append(self.log_length, self.log_noise)
-        bounds = [_LOG_LENGTH_BOUNDS] * self.dims + [_LOG_NOISE_BOUNDS]
-        try:
-            found = scipy.optimize.minimize(negative, start, jac=True, method="L-BFGS-B", bounds=bounds,
-                                            options={"maxiter": max_iterations})
-            theta = found.x if np.all(np.isfinite(found.x)) else start
-        except np.linalg.LinAlgError:
-            theta = start
-        self.log_length = theta[:-1].copy()
-        self.log_noise = float(theta[-1])
-        self.refactor()
-        self.set_targets(self.y[:n])
 
 
 # ----------------------------------------------------------------------------------------------------------

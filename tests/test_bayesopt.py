@@ -5,7 +5,7 @@ import pytest
 import scipy.linalg
 import scipy.special
 
-from perceptual_uv.core import bayesopt
+from perceptual_uv.core import bayesopt, gaussian_process
 from perceptual_uv.core.bayesopt import minimize, minimize_constrained
 
 
@@ -15,7 +15,7 @@ def _random_problem(seed, n=12, c=7, d=4, periodic=(True, False, False, False)):
 
 
 def _full_factor(X, inv_length, periodic, noise):
-    C = bayesopt._matern52_numpy(X, X, inv_length, periodic) + noise * np.eye(len(X))
+    C = gaussian_process._matern52_numpy(X, X, inv_length, periodic) + noise * np.eye(len(X))
     return np.linalg.cholesky(C)
 
 
@@ -24,20 +24,20 @@ def _full_factor(X, inv_length, periodic, noise):
 
 def test_matern52_numba_matches_numpy_reference():
     X, C, inv_length, periodic = _random_problem(0)
-    np.testing.assert_allclose(bayesopt._matern52_numba(X, C, inv_length, periodic),
-                               bayesopt._matern52_numpy(X, C, inv_length, periodic), rtol=1e-13)
+    np.testing.assert_allclose(gaussian_process._matern52_numba(X, C, inv_length, periodic),
+                               gaussian_process._matern52_numpy(X, C, inv_length, periodic), rtol=1e-13)
 
 
 def test_matern52_closed_form_and_periodic_wrap():
     # One dimension, length 1: k(r) = (1 + sqrt5 r + 5 r^2 / 3) exp(-sqrt5 r) at r = 0.5 by hand.
     r = 0.5
     expected = (1 + math.sqrt(5) * r + 5 * r * r / 3) * math.exp(-math.sqrt(5) * r)
-    value = bayesopt._matern52_numba(np.array([[0.1]]), np.array([[0.6]]), np.ones(1), np.zeros(1, bool))
+    value = gaussian_process._matern52_numba(np.array([[0.1]]), np.array([[0.6]]), np.ones(1), np.zeros(1, bool))
     assert value[0, 0] == pytest.approx(expected, rel=1e-14)
     # Periodic (period 1): points 0.02 and 0.98 are 0.04 apart, as close as 0.50 and 0.54.
     periodic = np.ones(1, bool)
-    across = bayesopt._matern52_numba(np.array([[0.02]]), np.array([[0.98]]), np.ones(1), periodic)
-    inside = bayesopt._matern52_numba(np.array([[0.50]]), np.array([[0.54]]), np.ones(1), periodic)
+    across = gaussian_process._matern52_numba(np.array([[0.02]]), np.array([[0.98]]), np.ones(1), periodic)
+    inside = gaussian_process._matern52_numba(np.array([[0.50]]), np.array([[0.54]]), np.ones(1), periodic)
     assert across[0, 0] == pytest.approx(inside[0, 0], rel=1e-12)
 
 
@@ -45,10 +45,10 @@ def test_cholesky_append_matches_full_factor_and_reference():
     X, _, inv_length, periodic = _random_problem(1)
     noise = 1e-4
     full = _full_factor(X, inv_length, periodic, noise)
-    for append in (bayesopt._cholesky_append_numba, bayesopt._cholesky_append_numpy):
+    for append in (gaussian_process._cholesky_append_numba, gaussian_process._cholesky_append_numpy):
         L = np.zeros_like(full)
         for n in range(len(X)):
-            k = bayesopt._matern52_numpy(X[:n], X[n:n + 1], inv_length, periodic)[:, 0]
+            k = gaussian_process._matern52_numpy(X[:n], X[n:n + 1], inv_length, periodic)[:, 0]
             append(L, n, k, 1.0 + noise)
         np.testing.assert_allclose(L, full, atol=1e-12)
 
@@ -56,8 +56,8 @@ def test_cholesky_append_matches_full_factor_and_reference():
 def test_append_rows_numba_matches_reference_and_dense_solve():
     X, C, inv_length, periodic = _random_problem(2)
     L = _full_factor(X, inv_length, periodic, 1e-4)
-    dense = scipy.linalg.solve_triangular(L, bayesopt._matern52_numpy(X, C, inv_length, periodic), lower=True)
-    for append in (bayesopt._append_rows_numba, bayesopt._append_rows_numpy):
+    dense = scipy.linalg.solve_triangular(L, gaussian_process._matern52_numpy(X, C, inv_length, periodic), lower=True)
+    for append in (gaussian_process._append_rows_numba, gaussian_process._append_rows_numpy):
         V, squares = np.empty((len(X), len(C))), np.zeros(len(C))
         # rows in two steps and columns in two blocks, as the search does
         append(V, squares, L, X, 0, 5, C, 0, 3, inv_length, periodic)
@@ -74,11 +74,12 @@ def test_posterior_from_rows_matches_textbook_formula():
     y = np.sin(3 * X).sum(1)
     L = _full_factor(X, inv_length, periodic, noise)
     V, squares = np.empty((len(X), len(C))), np.zeros(len(C))
-    bayesopt._append_rows_numba(V, squares, L, X, 0, len(X), C, 0, len(C), inv_length, periodic)
+    gaussian_process._append_rows_numba(V, squares, L, X, 0, len(X), C, 0, len(C), inv_length, periodic)
     w = scipy.linalg.solve_triangular(L, y, lower=True)
-    K = bayesopt._matern52_numpy(X, X, inv_length, periodic) + noise * np.eye(len(X))
-    Ks = bayesopt._matern52_numpy(X, C, inv_length, periodic)
-    np.testing.assert_allclose(bayesopt._leading_dot_numba(V, w, len(C)), Ks.T @ np.linalg.solve(K, y), atol=1e-10)
+    K = gaussian_process._matern52_numpy(X, X, inv_length, periodic) + noise * np.eye(len(X))
+    Ks = gaussian_process._matern52_numpy(X, C, inv_length, periodic)
+    np.testing.assert_allclose(gaussian_process._leading_dot_numba(V, w, len(C)), Ks.T @ np.linalg.solve(K, y),
+                               atol=1e-10)
     np.testing.assert_allclose(squares, np.einsum("ij,ij->j", Ks, np.linalg.solve(K, Ks)), atol=1e-10)
 
 
@@ -119,9 +120,9 @@ def test_select_batch_incremental_matches_dense_reference(kind):
     Xc[:len(X)] = X
     L[:len(X), :len(X)] = _full_factor(X, inv_length, periodic, noise)
     V, squares = np.empty((capacity, len(C))), np.zeros(len(C))
-    bayesopt._append_rows_numba(V, squares, L, Xc, 0, len(X), C, 0, len(C), inv_length, periodic)
+    gaussian_process._append_rows_numba(V, squares, L, Xc, 0, len(X), C, 0, len(C), inv_length, periodic)
     w = scipy.linalg.solve_triangular(L[:len(X), :len(X)], np.sin(4 * X[:, 0]), lower=True)
-    mean = bayesopt._leading_dot_numba(V, w, len(C))
+    mean = gaussian_process._leading_dot_numba(V, w, len(C))
     cost = np.random.default_rng(0).random(len(C))
     args = (mean, 0.8, inv_length, periodic, kind, 0.1, 0.01, cost, 0.7)
     reference = bayesopt._select_batch_numpy(q, Xc.copy(), L.copy(), len(X), noise, C, V.copy(), squares.copy(),
@@ -151,8 +152,8 @@ def test_log_likelihood_numba_matches_reference_and_finite_differences():
     y = np.sin(5 * X[:, 0]) + X[:, 1] ** 2
     y = (y - y.mean()) / y.std()
     log_length, log_noise = np.log([0.3, 0.5, 1.2, 0.8]), math.log(1e-3)
-    value, gradient = bayesopt._log_likelihood_numba(X, y, log_length, log_noise, periodic)
-    ref_value, ref_gradient = bayesopt._log_likelihood_numpy(X, y, log_length, log_noise, periodic)
+    value, gradient = gaussian_process._log_likelihood_numba(X, y, log_length, log_noise, periodic)
+    ref_value, ref_gradient = gaussian_process._log_likelihood_numpy(X, y, log_length, log_noise, periodic)
     assert value == pytest.approx(ref_value, rel=1e-12)
     np.testing.assert_allclose(gradient, ref_gradient, rtol=1e-9)
     theta = np.append(log_length, log_noise)
@@ -161,14 +162,14 @@ def test_log_likelihood_numba_matches_reference_and_finite_differences():
         up, down = theta.copy(), theta.copy()
         up[k] += h
         down[k] -= h
-        numeric = (bayesopt._log_likelihood_numpy(X, y, up[:4], up[4], periodic)[0]
-                   - bayesopt._log_likelihood_numpy(X, y, down[:4], down[4], periodic)[0]) / (2 * h)
+        numeric = (gaussian_process._log_likelihood_numpy(X, y, up[:4], up[4], periodic)[0]
+                   - gaussian_process._log_likelihood_numpy(X, y, down[:4], down[4], periodic)[0]) / (2 * h)
         assert gradient[k] == pytest.approx(numeric, rel=1e-5, abs=1e-7)
 
 
 def test_gaussian_process_incremental_factor_equals_refactor_after_fit():
     X, _, _, periodic = _random_problem(6, n=20)
-    gp = bayesopt._GaussianProcess(4, 30, periodic)
+    gp = gaussian_process._GaussianProcess(4, 30, periodic)
     for x in X[:12]:
         gp.add(x)
     gp.set_targets(np.sin(6 * X[:12, 0]))
