@@ -26,7 +26,6 @@ from ._jit import njit
 
 __all__ = []
 
-_SQRT5 = math.sqrt(5.0)
 _LOG_LENGTH_BOUNDS = (math.log(0.02), math.log(5.0))
 _LOG_NOISE_BOUNDS = (math.log(1e-6), math.log(1e-1))
 
