@@ -24,7 +24,8 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))
 
 from perceptual_uv.core.charts import uv_topology  # noqa: E402
 from perceptual_uv.core.deformation import jacobian  # noqa: E402
-from perceptual_uv.core.meshwise import fit_energy, solve_meshwise  # noqa: E402
+from perceptual_uv.core.meshwise import solve_meshwise  # noqa: E402
+from perceptual_uv.core.meshwise_local import fit_energy  # noqa: E402
 from perceptual_uv.core.overlap import count_overlaps  # noqa: E402
 
 MODEL_SUFFIXES = (".gltf", ".glb", ".obj", ".blend")

@@ -7,7 +7,7 @@ targets; where they agree, the terms keep the texture's lines on the grid. Which
 models and between the charts of one model. So the stage fits twice, without rotation terms (``w_R = 0``) and
 with Eq. 17's ``w_R``; folded charts get their input layout back (:func:`.overlap.restore_folded_charts`);
 every chart of both fits is turned rigidly to the angle that best meets its rotation targets
-(:func:`.meshwise.orient_charts`, which changes no stretch); the loss E of Sec. 4.1 is measured for every
+(:func:`.chart_orientation.orient_charts`, which changes no stretch); the loss E of Sec. 4.1 is measured for every
 triangle of both; and each chart keeps the fit whose triangles' losses sum lower, unless that fit folds the
 chart over itself more than the other does. The fits and the turns measure Jacobians in texels of the input
 texture, the frame of the triangle-wise targets, so a texture that is not square keeps the shape of its texels.
@@ -18,8 +18,9 @@ import inspect
 
 import numpy as np
 
+from .chart_orientation import orient_charts
 from .charts import UVTopology, uv_topology
-from .meshwise import flipped_triangles, iter_solve_meshwise, orient_charts
+from .meshwise import flipped_triangles, iter_solve_meshwise
 from .overlap import FOLD_TOLERANCE, iter_restore_folded_charts, shared_area_fractions
 from .progress import report_while_waiting, run_generator
 from .stacks import restack_charts
@@ -40,7 +41,7 @@ class ChartFit:
     rotation_fit : (n_charts,) bool ndarray
         Charts that kept the fit with Eq. 16's rotation terms.
     angles : (n_charts,) float64 ndarray
-        The rigid turn of every chart in the fit it kept (:func:`.meshwise.orient_charts`).
+        The rigid turn of every chart in the fit it kept (:func:`.chart_orientation.orient_charts`).
     restored : (k,) int64 ndarray
         Charts laid out as in the input because the fit they kept folded them.
     flipped : int
@@ -68,7 +69,7 @@ def finish_charts(uv_in, uv_new, face_chart, *, alpha=None, w_R=None, texel_scal
     Folded charts get their input layout back at their new size (:func:`.overlap.restore_folded_charts`);
     charts that share texels in the input get their input layout back together, at their new size
     (:func:`.stacks.restack_charts`); then every chart, and every stack as one, is turned rigidly to the angle
-    that best meets its rotation targets (:func:`.meshwise.orient_charts`, which changes no stretch and no
+    that best meets its rotation targets (:func:`.chart_orientation.orient_charts`, which changes no stretch and no
     fold). These are the steps :func:`fit_charts` applies to each of its fits.
 
     Parameters
@@ -234,7 +235,7 @@ def fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0), max
         a modal operator.
     texel_scale : (2,) array_like of float, optional
         Texels per UV unit of the input texture along u and v, ``(w, h)``: both fits
-        (:func:`.meshwise.solve_meshwise`) and the chart turns (:func:`.meshwise.orient_charts`) meet the
+        (:func:`.meshwise.solve_meshwise`) and the chart turns (:func:`.chart_orientation.orient_charts`) meet the
         targets on the texel grid, so a ``w != h`` texture keeps its texels' shape and turns charts by texel
         angles. ``(1, 1)``: UV units.
     max_iterations : int, optional

@@ -355,7 +355,7 @@ def symmetric_dirichlet(V, F, uv, *, normalize=True, degenerate_tol=1e-6, uv_rou
     height wherever the map does not shrink it with the surface (sofa_03's one sliver: SSP's E_iso per unit
     area is 9.7 with it and 1.9 without). Blender keeps UVs in float32, so a UV triangle flat but for the
     rounding of its corners is degenerate too (``uv_rounding``): once their chart is turned
-    (:func:`.meshwise.orient_charts`), rounding lifts WaterBottle's two slivers above a millionth, and E_iso
+    (:func:`.chart_orientation.orient_charts`), rounding lifts WaterBottle's two slivers above a millionth, and E_iso
     per unit area to 4e6.
 
     References

@@ -211,7 +211,7 @@ def _make(method, objects, source, name):
 @pytest.mark.parametrize("method", ["SSP", "SSPOP", "CONFORMAL"])
 def test_a_baseline_chart_turned_off_the_grid_is_turned_back(spot, monkeypatch, method):
     from perceptual_uv.bridge.evaluate import mesh_arrays
-    from perceptual_uv.core.meshwise import _angle_of
+    from perceptual_uv.core.meshwise_local import _angle_of
 
     objects, source = spot
     _, uv, chart = _charts(objects, source)

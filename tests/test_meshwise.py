@@ -9,10 +9,10 @@ from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import rotation
 from perceptual_uv.core.mesh import read_obj
 from perceptual_uv.core.progress import run_generator
-from perceptual_uv.core.meshwise import (_local_update_kernel, _local_update_reference,
-                                         _Objective, _prepare, barrier, fit_energy, iter_solve_meshwise,
-                                         flipped_triangles, local_step, orient_charts,
-                                         solve_meshwise)
+from perceptual_uv.core.chart_orientation import orient_charts
+from perceptual_uv.core.meshwise import flipped_triangles, iter_solve_meshwise, solve_meshwise
+from perceptual_uv.core.meshwise_global import _Objective, _prepare, barrier
+from perceptual_uv.core.meshwise_local import _local_update_kernel, _local_update_reference, fit_energy, local_step
 
 HERE = pathlib.Path(__file__).resolve().parent
 SPOT = HERE / "data" / "spot" / "spot_triangulated.obj"

@@ -19,9 +19,10 @@ reproduces with ``texel_scale=(1, 1)``.
 import numpy as np
 import pytest
 
+from perceptual_uv.core.chart_orientation import orient_charts
 from perceptual_uv.core.chartfit import fit_charts
 from perceptual_uv.core.deformation import jacobian, rotation
-from perceptual_uv.core.meshwise import flipped_triangles, orient_charts, solve_meshwise
+from perceptual_uv.core.meshwise import flipped_triangles, solve_meshwise
 
 W, H = 64, 32
 TEXEL_SCALE = (W, H)
