@@ -135,8 +135,8 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
                         help="worker processes of one asset's triangle-wise stage (0: one per core)")
     parser.add_argument("--seed", type=int, default=DEFAULTS.seed)
     parser.add_argument("--fresh", action="store_true",
-                        help="compute the triangle-wise stage again instead of reusing the results an earlier run "
-                             "with the same mesh, UV map, texture and triangle-wise settings kept (or the "
+                        help="compute the triangle-wise and mesh-wise stages again instead of reusing the results "
+                             "an earlier run with the same mesh, UV map, texture and stage settings kept (or the "
                              "triangles a stopped run had done)")
     parser.add_argument("--bake-in-background", dest="bake_in_background", action="store_true",
                         help="bake the maps in a background Blender process, as the Optimize UVs button does "

@@ -18,7 +18,7 @@ import bpy
 import numpy as np
 
 from ..core import cost as texel_cost
-from ..core.progress import InThread, RunProgress, format_seconds, report_while_waiting
+from ..core.progress import InThread, RunProgress, format_seconds, relay_stage, report_while_waiting
 from .image_file import image_channels, image_size, iter_read_image, iter_save_or_pack
 from .loss_overlay import write_loss_attributes
 from .material import base_color_image_node
@@ -336,14 +336,12 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     try:
         yield from _iter_import_stages(step)
         from ..core.charts import uv_topology
-        from ..core.chartfit import iter_fit_charts
-        from ..core.loss import above_bound, iter_textured_triangles
-        from ..core.loss_passes import iter_fit_losses
+        from ..core.loss import above_bound
         from ..core.result_cache import result_key
-        from ..core.ssp import iter_ssp_targets
         from ..core.stacks import packing_islands, stacked_charts, stacked_faces
         from ..core.trianglewise import iter_optimize_triangles
         from .bake import iter_bake_maps
+        from .meshwise_stage import iter_meshwise_stage, meshwise_key, meshwise_results
 
         started = time.perf_counter()  # the run's times leave out loading the modules
         yield step("read", 0, _READ_STEPS, "Reading the mesh")
@@ -354,22 +352,26 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         mesh, texture, faces = validated.mesh, validated.texture, validated.faces
         V, F, uv_in = mesh.V, mesh.F, mesh.uv
         # Every map the loss sees, the loss image's first.
-        planes = yield from _relay(iter_loss_planes_of(records, texture), "read", "Building the loss's planes",
-                                   time.perf_counter(), step)
+        planes = yield from relay_stage(iter_loss_planes_of(records, texture), "read", "Building the loss's planes",
+                                        time.perf_counter(), step)
         height, width = texture.shape[:2]
         m = len(F)
         reuse = texel_cost.texel_reuse(uv_in, (height, width))
         per_object = [mesh.object_index == index for index in range(len(objects))]
 
-        yield step("read", 5, _READ_STEPS, "Looking for the triangle-wise results of an earlier run")
+        yield step("read", 5, _READ_STEPS, "Looking for the results of an earlier run")
         clock = time.perf_counter()
-        # hashing the planes takes a few tenths of a second on 2048 px maps; hashlib lets other threads run
-        hashing = InThread(lambda: result_key(
-            V, F, uv_in, *planes, faces, epsilon=settings.epsilon, evaluations=settings.iterations,
-            screen_pixels=settings.screen_pixels, max_screen_pixels=settings.max_screen_pixels, seed=settings.seed))
+
+        def keys():  # hashing the maps takes a few tenths of a second at 2048 px; hashlib lets other threads run
+            triangle_key = result_key(V, F, uv_in, *planes, faces, epsilon=settings.epsilon,
+                                      evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
+                                      max_screen_pixels=settings.max_screen_pixels, seed=settings.seed)
+            return triangle_key, meshwise_key(triangle_key, texture, keep_stacks=settings.keep_stacks)
+
+        hashing = InThread(keys)
         for _ in hashing.wait():
-            yield step("read", 5, _READ_STEPS, "Looking for the triangle-wise results of an earlier run")
-        key = hashing.join()
+            yield step("read", 5, _READ_STEPS, "Looking for the results of an earlier run")
+        key, mesh_key = hashing.join()
         triangles = triangle_results().get(key) if settings.reuse_triangle_results else None
         if triangles is None:
             # The faces done by a run of the same key that was cancelled or killed (kept about every half minute).
@@ -383,7 +385,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                             workers=settings.workers, seed=settings.seed, faces=faces,
                                             scheduler=settings.scheduler, known=known,
                                             checkpoint=lambda partial: triangle_results().put(partial_key, partial))
-            triangles = yield from _relay(stage, "triangle", "Triangle-wise optimization", clock, step)
+            triangles = yield from relay_stage(stage, "triangle", "Triangle-wise optimization", clock, step)
             triangle_results().put(key, triangles)
             triangle_results().discard(partial_key)
             if known is not None:
@@ -402,34 +404,21 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                          "their input shape and size")
 
         clock = time.perf_counter()
-        stage = iter_ssp_targets(V, F, uv_in, texture)
-        signal, _, _ = yield from _relay(stage, "mesh", "Measuring the texture's signal stretch", clock, step)
-        # Which optimized triangles show texture in which plane: the fit's targets and the report's bound use it.
-        stage = iter_textured_triangles(uv_in[triangles.faces], planes, per_plane=True)
-        textured = yield from _relay(stage, "mesh", "Finding the textured triangles", time.perf_counter(), step)
-        # Skipped triangles (zero area, or not showing the image) follow their chart without pulling on it.
-        stage = triangles.iter_fit_targets(uv_in, planes, signal_targets=signal, textured=textured)
-        targets = yield from _relay(stage, "mesh", "Setting the mesh-wise fit's targets", time.perf_counter(), step)
-        params, w_R, w_S = validated.targets(targets, *triangles.fit_weights())
-        target_losses = None
-
-        def measure(fits):  # a generator: the fit hands control back while the workers measure
-            # The targets' losses (for the report) and the two fits' in one pass; skipped triangles show 0 in
-            # the overlay and the report counts optimized ones only.
-            nonlocal target_losses
-            target_losses, losses = yield from iter_fit_losses(
-                V, F, uv_in, planes, targets, fits, faces=faces, screen_pixels=settings.screen_pixels,
-                max_screen_pixels=settings.max_screen_pixels, workers=settings.workers, scheduler=settings.scheduler)
-            return losses
-
         yield step("mesh", 0, 1, "Finding the UV islands that share texels")
         topology = uv_topology(F, uv_in)
         input_charts = topology.face_chart
         stacks = stacked_charts(uv_in, input_charts) if settings.keep_stacks else None
-        stage = iter_fit_charts(F, uv_in, params, w_R, w_S, measure=measure, texel_scale=(width, height),
-                                stacks=stacks, topology=topology)
-        meshwise = yield from _relay(stage, "mesh", "Mesh-wise fit, with and without rotation targets", clock, step)
-        uv_fit, restored, losses = meshwise.uv, meshwise.restored, meshwise.losses
+        meshwise = meshwise_results().get(mesh_key) if settings.reuse_triangle_results else None
+        if meshwise is None:
+            meshwise = yield from iter_meshwise_stage(validated, planes, triangles, topology, stacks, settings, step,
+                                                      clock)
+            meshwise_results().put(mesh_key, meshwise)
+        else:
+            notes.append("the mesh-wise fit of an earlier run on the same input and settings was reused (the cost, "
+                         "margin, names and sizes change only the packing and the bake)")
+            run.skip("mesh", 1, 1)
+            yield step("mesh", 1, 1, "Mesh-wise fit: reused from an earlier run")
+        uv_fit, restored, losses, textured = meshwise.uv, meshwise.restored, meshwise.losses, meshwise.textured
         if restored.size:
             notes.append(f"{restored.size} UV island(s) folded over themselves in the mesh-wise fit (it is locally "
                          "injective only) and keep their input layout, scaled to their new size")
@@ -494,7 +483,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             return "Making the new images"
 
         with contextlib.closing(stage):  # a cancel stops the background process at once
-            bakes = yield from _relay(stage, "bake", None, clock, step, message=bake_message)
+            bakes = yield from relay_stage(stage, "bake", None, clock, step, message=bake_message)
         created.images.extend(result.image for result in bakes)
         baked = {(result.record.image.as_pointer(), result.kind): result.image for result in bakes}
         new_image = bakes[0].image
@@ -535,7 +524,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "stacked_charts": stacked,
             "triangles_within_bound": float(np.mean(losses[faces] <= settings.epsilon)),
             "textured_above_bound": above_bound(uv_in[faces], planes, settings.epsilon, textured=textured.any(axis=0),
-                                                targets=target_losses, fit=losses[faces]),
+                                                targets=meshwise.target_losses, fit=losses[faces]),
             "unevaluated_triangles": unevaluated,
             "optimized_triangles": int(len(faces)),
             "skipped_triangles": int(m - len(faces)),
@@ -568,27 +557,6 @@ def _overlap_report(uv, face_chart):
     overlaps = count_overlaps(uv, face_chart)
     return {"total": int(overlaps.total), "within_charts": int(overlaps.within_charts),
             "between_charts": int(overlaps.between_charts)}
-
-
-def _relay(stage, name, label, started, step, *, message=None):
-    """Re-yield a core stage's (done, total) progress through ``step`` with the stage's own time left; returns the
-    stage's value. ``message(done, total)``, when given, is each step's message instead of the label's count."""
-    first = None  # the count a stage starts from (a resumed stage starts past 0)
-    while True:
-        try:
-            done, total = next(stage)
-        except StopIteration as finished:
-            return finished.value
-        if message is not None:
-            yield step(name, done, total, message(done, total))
-            continue
-        first = done if first is None else first
-        elapsed = time.perf_counter() - started
-        left = (f", {format_seconds(elapsed / (done - first) * (total - done))} left in this stage"
-                if done > first else "")
-        yield step(name, done, total, f"{label}: {done}/{total}{left}")
-
-
 
 
 def _new_images(records, image, resolution, reference_cost, settings, sides_by_memory=None):

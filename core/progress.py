@@ -2,7 +2,8 @@
 import threading
 import time
 
-__all__ = ["run_generator", "report_while_waiting", "InThread", "RunProgress", "format_seconds"]
+__all__ = ["run_generator", "report_while_waiting", "relay_stage", "InThread", "RunProgress",
+           "format_seconds"]
 
 
 def run_generator(generator, progress=None):
@@ -148,3 +149,29 @@ def format_seconds(seconds):
     if seconds < 3600:
         return f"{seconds // 60} min {seconds % 60:02d} s"
     return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
+
+
+def relay_stage(stage, name, label, started, step, *, message=None):
+    """Generator: re-yield a stage's ``(done, total)`` progress as ``step(name, done, total, line)``; returns the
+    stage's value.
+
+    ``line`` is ``"label: done/total"`` with the time left in this stage (from ``started``, a
+    ``time.perf_counter()`` reading, and the count this call first saw: a resumed stage starts past 0), or
+    ``message(done, total)`` when ``message`` is given.
+    """
+    first = None  # the count a stage starts from (a resumed stage starts past 0)
+    while True:
+        try:
+            done, total = next(stage)
+        except StopIteration as finished:
+            return finished.value
+        if message is not None:
+            yield step(name, done, total, message(done, total))
+            continue
+        first = done if first is None else first
+        elapsed = time.perf_counter() - started
+        left = (f", {format_seconds(elapsed / (done - first) * (total - done))} left in this stage"
+                if done > first else "")
+        yield step(name, done, total, f"{label}: {done}/{total}{left}")
+
+

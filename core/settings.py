@@ -74,7 +74,8 @@ class OptimizeSettings:
     reuse_triangle_results : bool
         Reuse the triangle-wise results of an earlier run on the same mesh, UV map, texture and triangle-wise
         settings (epsilon, evaluations, view sizes, seed), kept in memory and in a per-user cache folder, or
-        the triangles done by such a run that was stopped (the stage goes on from them).
+        the triangles done by such a run that was stopped (the stage goes on from them); and its mesh-wise fit
+        when ``keep_stacks`` is the same too (the cost, margin, names and sizes change only what follows).
     role_costs : tuple of (str, float)
         Per-role override of the relative cost of the material's other maps, e.g. ``(("normal", 0.2),)``. By
         default every map gets the same relative cost as the base colour, each relative to its own input size (a

@@ -46,14 +46,22 @@ def empty_scene():
     return reset_blender_scene()
 
 
+# The modules holding a cache of stage results made on first use, and the list that holds it.
+_STAGE_CACHES = (("perceptual_uv.bridge.pipeline", "_TRIANGLE_RESULTS"),
+                 ("perceptual_uv.bridge.meshwise_stage", "_MESHWISE_RESULTS"))
+
+
+def _forget_stage_caches():
+    for module, name in _STAGE_CACHES:
+        if module in sys.modules:
+            getattr(sys.modules[module], name).clear()
+
+
 @pytest.fixture(autouse=True)
 def private_results_cache(tmp_path_factory, monkeypatch):
-    """Every test gets its own cache of triangle-wise results (in memory and on disk, for its subprocesses too):
-    a test never reuses another test's results, nor the user's."""
+    """Every test gets its own cache of triangle-wise and mesh-wise results (in memory and on disk, for its
+    subprocesses too): a test never reuses another test's results, nor the user's."""
     monkeypatch.setenv("PERCEPTUAL_UV_RESULTS_CACHE", str(tmp_path_factory.mktemp("results_cache")))
-    pipeline = sys.modules.get("perceptual_uv.bridge.pipeline")
-    if pipeline is not None:
-        pipeline._TRIANGLE_RESULTS.clear()
+    _forget_stage_caches()
     yield
-    if pipeline is not None or "perceptual_uv.bridge.pipeline" in sys.modules:
-        sys.modules["perceptual_uv.bridge.pipeline"]._TRIANGLE_RESULTS.clear()
+    _forget_stage_caches()

@@ -158,7 +158,7 @@ def test_reading_and_signal_stretch_hand_control_back_step_by_step(registered, s
     steps = [(progress.stage, progress.message) for progress in optimize_objects([obj], OptimizeSettings(**FAST))]
     reads = [message for stage, message in steps if stage == "read"]
     parts = ["Reading the mesh", "Loading the texture", "Reading the texture's pixels", "Checking the mesh and texture",
-             "Reading the material's maps", "Looking for the triangle-wise results of an earlier run"]
+             "Reading the material's maps", "Looking for the results of an earlier run"]
     # A part that waits on a thread (the pixels' decode) repeats its message every 0.1 s while it waits.
     assert list(dict.fromkeys(message for message in reads if message in parts)) == parts
     planes = [message for message in reads if message.startswith("Building the loss's planes: ")]

@@ -98,10 +98,11 @@ def test_default_folder_follows_the_environment(monkeypatch, tmp_path):
     assert default_cache_folder().name == "results"
 
 
-def test_the_pipeline_reuses_triangle_results_and_only_then(spot_obj):
+def test_the_pipeline_reuses_triangle_and_mesh_wise_results_and_only_then(spot_obj):
     pytest.importorskip("bpy")
     from conftest import reset_blender_scene
     from perceptual_uv.bridge.batch import textured_objects
+    from perceptual_uv.bridge.meshwise_stage import meshwise_results
     from perceptual_uv.bridge.mesh_io import import_model
     from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end, triangle_results
     from perceptual_uv.core.settings import OptimizeSettings
@@ -116,18 +117,27 @@ def test_the_pipeline_reuses_triangle_results_and_only_then(spot_obj):
         obj.data.uv_layers[finished.uv_map].uv.foreach_get("vector", values)
         return finished.report, values
 
+    def reused(report):
+        return ["triangle-wise" in note for note in report["notes"] if "reused" in note]
+
     first, uv_first = run(target_cost=0.3)
-    assert first["times_s"]["triangle"] > 0.5
+    assert first["times_s"]["triangle"] > 0.5 and reused(first) == []
     assert len(list(triangle_results().folder.glob("*.npz"))) == 1
-    second, _ = run(target_cost=0.2, margin=2)
+    assert len(list(meshwise_results().folder.glob("*.npz"))) == 1
+    second, _ = run(target_cost=0.2, margin=2)  # what the redo panel reruns: both stages reused
     assert second["times_s"]["triangle"] < 0.1 * first["times_s"]["triangle"]
-    assert any("reused" in note for note in second["notes"])
+    assert sorted(reused(second)) == [False, True]
     assert second["relative_cost"] == pytest.approx(0.2, rel=0.02)
     third, uv_third = run(target_cost=0.3, reuse_triangle_results=False)
-    assert not any("reused" in note for note in third["notes"])
-    np.testing.assert_array_equal(uv_third, uv_first)  # what was reused is what the stage computes
+    assert reused(third) == []
+    np.testing.assert_array_equal(uv_third, uv_first)  # what was reused is what the stages compute
+    again, uv_again = run(target_cost=0.3)
+    assert sorted(reused(again)) == [False, True]
+    np.testing.assert_array_equal(uv_again, uv_first)
+    unstacked, _ = run(target_cost=0.3, keep_stacks=False)  # the fit changes, the triangle-wise stage does not
+    assert reused(unstacked) == [True]
     fourth, _ = run(iterations=12)
-    assert not any("reused" in note for note in fourth["notes"])  # another setting of the stage
+    assert reused(fourth) == []  # another setting of the triangle-wise stage
 
 
 def test_a_run_stopped_in_the_triangle_wise_stage_resumes_from_the_faces_done(spot_obj, monkeypatch):
@@ -172,3 +182,16 @@ def test_a_run_stopped_in_the_triangle_wise_stage_resumes_from_the_faces_done(sp
     assert int(note.split()[4]) >= total // 3 and f"of {total} triangles" in note
     assert not partial.exists() and len(list(triangle_results().folder.glob("*.npz"))) == 1
     np.testing.assert_array_equal(uv_of(obj, resumed), uv_whole)  # as if never stopped
+
+
+def test_the_mesh_wise_key_follows_the_triangle_key_the_loss_image_and_keep_stacks():
+    from perceptual_uv.bridge.meshwise_stage import meshwise_key
+
+    texture = np.linspace(0.0, 1.0, 48, dtype=np.float32).reshape(4, 4, 3)
+    key = meshwise_key("a" * 64, texture, keep_stacks=True)
+    assert key == meshwise_key("a" * 64, texture.copy(), keep_stacks=True) and len(key) == 64
+    changed = texture.copy()
+    changed[0, 0, 2] += 0.25  # a colour the loss's luma may not show, signal stretch does
+    others = {meshwise_key("b" * 64, texture, keep_stacks=True), meshwise_key("a" * 64, changed, keep_stacks=True),
+              meshwise_key("a" * 64, texture, keep_stacks=False)}
+    assert key not in others and len(others) == 3
