@@ -92,7 +92,7 @@ _PACKED = ("bridge.pack", "core.stacks", "bridge.baselines:_stacks", "bridge.bas
            "bridge.baselines:_texture", "bridge.baselines:_texture_image", "bridge.baselines:PACK_MARGIN_PIXELS")
 _FINISHED = _PACKED + ("core.charts", "core.overlap", "core.meshwise", "core.chart_orientation",
                        "core.chartfit:finish_charts", "bridge.baselines:_finished", "bridge.baselines:_post_counts")
-_OURS = _FINISHED + ("core.chartfit", "core.trianglewise", "core.loss", "core.ssp",
+_OURS = _FINISHED + ("core.chartfit", "core.trianglewise", "core.loss", "core.textured", "core.ssp",
                      "bridge.baselines:perceptual_uv", "bridge.baselines:triangle_targets",
                      "bridge.baselines:_triangle_cache_key", "bench.compare:UVMaps.triangles",
                      "bench.compare:OURS_VARIANTS", "bench.compare:TRIANGLE_OPTIONS",

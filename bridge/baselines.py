@@ -26,7 +26,6 @@ import numpy as np
 
 from ..core.chartfit import finish_charts, fit_charts
 from ..core.charts import uv_topology
-from ..core.loss import above_bound
 from ..core.loss_passes import iter_fit_losses
 from ..core.loss_planes import PlaneStack
 from ..core.meshwise import solve_meshwise
@@ -35,6 +34,7 @@ from ..core.progress import run_generator
 from ..core.result_cache import dataclass_from, save_arrays
 from ..core.ssp import solve_ssp, ssp_targets
 from ..core.stacks import stacked_charts, stacked_faces
+from ..core.textured import above_bound
 from ..core.trianglewise import optimize_triangles
 from ..core.trianglewise_result import MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult
 from .mesh_io import read_image, read_mesh, write_uv_layer
@@ -346,7 +346,7 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
     dict
         Times (s), the post-processing's counts, and ``above_bound``: the fractions of textured triangles whose
         E (the project's views, :func:`core.loss_passes.iter_fit_losses`) exceeds the triangle-wise epsilon at
-        the fit's targets and after the fit (:func:`core.loss.above_bound`): for ours measured with the choice
+        the fit's targets and after the fit (:func:`core.textured.above_bound`): for ours measured with the choice
         between the fits, in ``mesh`` as in the pipeline; for an ablation after ``mesh`` was timed.
     """
     objects = _check(objects, source_uv, name)

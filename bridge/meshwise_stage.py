@@ -111,9 +111,9 @@ def iter_meshwise_stage(validated, planes, triangles, topology, stacks, settings
     import time
 
     from ..core.chartfit import iter_fit_charts
-    from ..core.loss import iter_textured_triangles
     from ..core.loss_passes import iter_fit_losses
     from ..core.ssp import iter_ssp_targets
+    from ..core.textured import iter_textured_triangles
 
     V, F, uv_in = validated.mesh.V, validated.mesh.F, validated.mesh.uv
     texture, faces = validated.texture, validated.faces

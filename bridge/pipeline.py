@@ -336,9 +336,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     try:
         yield from _iter_import_stages(step)
         from ..core.charts import uv_topology
-        from ..core.loss import above_bound
         from ..core.result_cache import result_key
         from ..core.stacks import packing_islands, stacked_charts, stacked_faces
+        from ..core.textured import above_bound
         from ..core.trianglewise import iter_optimize_triangles
         from .bake import iter_bake_maps
         from .meshwise_stage import iter_meshwise_stage, meshwise_key, meshwise_results

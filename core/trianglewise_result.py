@@ -25,9 +25,9 @@ import dataclasses
 import numpy as np
 
 from .charts import texel_areas
-from .loss import iter_textured_triangles
 from .loss_planes import texture_planes
 from .progress import run_generator
+from .textured import iter_textured_triangles
 
 __all__ = ["MIN_TEXELS", "SIGNAL_WEIGHT", "STRETCH_WEIGHT_FLOOR", "TrianglewiseResult"]
 
@@ -107,7 +107,7 @@ class TrianglewiseResult:
         the texel floor ``lambda >= sqrt(min_texels / A)``, ``A`` its input area in texels (at most 1), and, given
         signal stretch's targets, each textured triangle's target area drawn towards the area signal stretch
         gives it. Yields ``(done, total)`` after each slice of faces whose texels it tested
-        (:func:`.loss.iter_textured_triangles`), then after each plane's texel areas; returns the targets.
+        (:func:`.textured.iter_textured_triangles`), then after each plane's texel areas; returns the targets.
 
         Parameters
         ----------
@@ -127,14 +127,14 @@ class TrianglewiseResult:
             fixes areas only up to a common factor). Each triangle keeps its own stretch ratio and orientation,
             and no stretch exceeds 1 (Eq. 14). 0 leaves the areas alone.
         textured : (p, k) array_like of bool, optional
-            ``textured_triangles(uv[faces], luma, per_plane=True)`` (:func:`.loss.textured_triangles`) when the
+            ``textured_triangles(uv[faces], luma, per_plane=True)`` (:func:`.textured.textured_triangles`) when the
             caller has it already; nothing is tested then.
 
         Returns
         -------
         (k, 4) float64 ndarray
             ``(alpha, lambda1, lambda2, beta)`` per face of :attr:`faces`; only the lambdas change, and only on
-            triangles whose own texels vary (:func:`.loss.textured_triangles`), that have UV area and whose
+            triangles whose own texels vary (:func:`.textured.textured_triangles`), that have UV area and whose
             loss could be evaluated (:attr:`unevaluated` faces keep the identity).
 
         Notes

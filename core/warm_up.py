@@ -13,12 +13,12 @@ import numpy as np
 from .charts import uv_topology
 from .cost import texel_reuse
 from .footprint import footprint_texels
-from .loss import textured_triangles
 from .meshwise import solve_meshwise
 from .one_ring import one_ring_faces
 from .overlap import restore_folded_charts
 from .packing import pack_charts
 from .stacks import stacked_charts
+from .textured import textured_triangles
 
 __all__ = ["load_kernels"]
 
@@ -26,7 +26,7 @@ __all__ = ["load_kernels"]
 def load_kernels():
     """Compile, or load from numba's cache, every kernel a run executes outside its worker processes.
 
-    Runs the fit's texel test (:func:`.loss.textured_triangles`), one mesh-wise iteration, the fold restore,
+    Runs the fit's texel test (:func:`.textured.textured_triangles`), one mesh-wise iteration, the fold restore,
     the packing, the bake's footprint search and the input's texel reuse on a square of two triangles with a third
     folded over them.
     """

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core import loss, loss_stack
+from perceptual_uv.core import textured as tex
 from perceptual_uv.core import loss_passes as lp
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core.deformation import jacobian
@@ -225,30 +226,30 @@ def test_textured_triangles_and_above_bound_take_any_plane():
     left[:, 16:26] = np.arange(10) % 2  # detail under the left part of the UV square (texels 16-47) only
     right = np.zeros((64, 64))
     right[:, 38:48] = np.arange(10) % 2
-    either = loss.textured_triangles(uv, [left, right])
-    np.testing.assert_array_equal(either, loss.textured_triangles(uv, left) | loss.textured_triangles(uv, right))
-    assert loss.textured_triangles(uv, left).any() and loss.textured_triangles(uv, right).any()
+    either = tex.textured_triangles(uv, [left, right])
+    np.testing.assert_array_equal(either, tex.textured_triangles(uv, left) | tex.textured_triangles(uv, right))
+    assert tex.textured_triangles(uv, left).any() and tex.textured_triangles(uv, right).any()
     assert not either.all()
-    assert not loss.textured_triangles(uv, [np.zeros((8, 8)), np.ones((4, 4))]).any()
+    assert not tex.textured_triangles(uv, [np.zeros((8, 8)), np.ones((4, 4))]).any()
     losses = np.where(either, 0.02, 0.0)
-    assert loss.above_bound(uv, [left, right], 0.01, fit=losses) == {"textured_triangles": int(either.sum()),
+    assert tex.above_bound(uv, [left, right], 0.01, fit=losses) == {"textured_triangles": int(either.sum()),
                                                                      "fit": 1.0}
-    per_plane = loss.textured_triangles(uv, [left, right], per_plane=True)
-    np.testing.assert_array_equal(per_plane, [loss.textured_triangles(uv, left), loss.textured_triangles(uv, right)])
+    per_plane = tex.textured_triangles(uv, [left, right], per_plane=True)
+    np.testing.assert_array_equal(per_plane, [tex.textured_triangles(uv, left), tex.textured_triangles(uv, right)])
     # A mask given by the caller is taken as it is: the planes are not read.
-    assert loss.above_bound(uv, None, 0.01, textured=~either, fit=losses) == {
+    assert tex.above_bound(uv, None, 0.01, textured=~either, fit=losses) == {
         "textured_triangles": int((~either).sum()), "fit": 0.0}
 
 
 def test_the_texel_test_hands_control_back_after_each_slice_of_faces_of_each_plane(monkeypatch):
     V, F, uv = grid_mesh()
     planes = [np.arange(64.0).reshape(8, 8), np.zeros((4, 4))]
-    monkeypatch.setattr(loss, "TEXTURED_SLICE", len(uv) // 2 + 1)
+    monkeypatch.setattr(tex, "TEXTURED_SLICE", len(uv) // 2 + 1)
     steps = []
-    textured = run_generator(loss.iter_textured_triangles(uv, planes), lambda *step: steps.append(step))
+    textured = run_generator(tex.iter_textured_triangles(uv, planes), lambda *step: steps.append(step))
     m = len(uv)
     assert steps == [(m // 2 + 1, 2 * m), (m, 2 * m), (m + m // 2 + 1, 2 * m), (2 * m, 2 * m)]
-    np.testing.assert_array_equal(textured, loss.textured_triangles(uv, planes[0]))
+    np.testing.assert_array_equal(textured, tex.textured_triangles(uv, planes[0]))
 
 
 def test_losses_of_a_stack_are_the_max_of_each_planes(scene):

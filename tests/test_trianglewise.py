@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core import spawn
-from perceptual_uv.core import loss
+from perceptual_uv.core import textured as tex
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.loss import triangle_problem
@@ -353,7 +353,7 @@ def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
     # per plane's texel areas, (1, 2) for one plane, and the floored targets of the test above; with a second plane
     # two more texel-test steps count up to 8 and the areas up to 3.
     texture, uv, params, result = _hand_placed_targets()
-    monkeypatch.setattr(loss, "TEXTURED_SLICE", 3)
+    monkeypatch.setattr(tex, "TEXTURED_SLICE", 3)
     steps = []
     targets = run_generator(result.iter_fit_targets(uv, texture, min_texels=2.0), lambda *step: steps.append(step))
     assert steps == [(3, 4), (4, 4), (1, 2)]
@@ -362,7 +362,7 @@ def test_fit_targets_test_texels_a_slice_of_faces_per_step(monkeypatch):
     steps = list(result.iter_fit_targets(uv, [texture, texture], min_texels=2.0))
     assert steps == [(3, 8), (4, 8), (7, 8), (8, 8), (1, 3), (2, 3)]
     # Given the texel test's answer, the targets are the same and nothing is tested (the areas' step only).
-    textured = loss.textured_triangles(uv[result.faces], texture, per_plane=True)
+    textured = tex.textured_triangles(uv[result.faces], texture, per_plane=True)
     steps = []
     given = run_generator(result.iter_fit_targets(uv, texture, min_texels=2.0, textured=textured),
                           lambda *step: steps.append(step))
