@@ -12,8 +12,9 @@ orthonormal frame of its plane), so ``grad_t f = A_T^-T grad f`` and the error o
     sum_T  integral_T |A_T^-T grad f|^2 dA  =  sum_T tr(A_T^-T Gamma_T A_T^-1),
     Gamma_T = integral_T (grad f)(grad f)^T dA          (the signal-stretch metric tensor, 2 x 2),
 
-pre-integrated once per triangle. At a fixed texel count ``delta^2`` is proportional to the total UV area, so
-the energy compared between parameterizations is the scale-invariant product
+pre-integrated once per triangle (:mod:`.signal_metric`, which also says how). At a fixed texel count
+``delta^2`` is proportional to the total UV area, so the energy compared between parameterizations is the
+scale-invariant product
 
     E_SSP = (sum_T |T^t| / sum_T |T|) * sum_T tr(A_T^-T Gamma_T A_T^-1),
 
@@ -37,11 +38,6 @@ default 0.01 a constant region gets 1/10 of the UV area density of an isotropic 
 
 Decisions (not in SGSH02, whose hierarchical solver and domain boundary we do not reproduce):
 
-* ``Gamma_T`` is integrated by the midpoint rule on a regular subdivision of T into ``k^2`` equal
-  triangles, ``k`` chosen so a sub-triangle covers at most a quarter texel of the input texture (capped by
-  ``max_level``); the gradient is that of the bilinear interpolant the renderer sees (Eq. 9), exact inside
-  each cell between texel centres. Colour textures sum the tensors of R, G and B (SGSH02's treatment of
-  multi-channel signals) unless ``channels="luma"``.
 * :func:`solve_ssp` minimizes ``log E_SSP`` over the chart-vertex UVs by L-BFGS from the input UVs, keeping
   the input's cuts. Every line search starts below the largest step at which a triangle would flip (roots of
   ``det(U + t dU)``) and backtracks to the Armijo condition; ``E_SSP`` is infinite at a collapse (the
@@ -60,47 +56,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .charts import uv_topology, validate_faces_and_uv
+from .charts import uv_topology
 from .deformation import inverse_2x2
 from .evaluation import _triangle_frames
-from .gmsd import luma
-from .mesh import check_mesh
 from .progress import run_generator
+from .signal_metric import _check_mesh, _det, _uv_edges, iter_signal_metric_tensors
 
-__all__ = ["signal_metric_tensors", "iter_signal_metric_tensors", "expected_stretch", "ssp_energy", "SSPResult",
-           "solve_ssp", "ssp_targets", "iter_ssp_targets"]
-
-# The generator forms hand control back after each slice of work, so a modal operator driving them keeps the
-# interface responsive: a slice of faces holds at most this many integration points (a few tens of ms and tens
-# of MB), a band of texture rows at most this many texels (its check and float64 copy, a few ms).
-_POINTS_PER_SLICE = 1 << 16
-_TEXELS_PER_SLICE = 1 << 20
-
-
-def _check_mesh(V, F, uv):
-    """:func:`.mesh.check_mesh` (shapes, index range), finite ``V``, and :func:`.charts.validate_faces_and_uv`."""
-    V, F = check_mesh(V, F)
-    if not np.all(np.isfinite(V)):
-        raise ValueError("V holds NaN or infinite coordinates")
-    F, uv = validate_faces_and_uv(F, uv)
-    return V, F, uv
-
+__all__ = ["expected_stretch", "ssp_energy", "SSPResult", "solve_ssp", "ssp_targets", "iter_ssp_targets"]
 
 def _iter_checked_problem(V, F, uv, texture, metric, geometric_weight, channels, caller):
     """Checked mesh, its surface frames and the blended metric (``caller`` names the function in errors).
 
     A generator: yields ``(done, total)`` faces while it integrates the tensors
-    (:func:`iter_signal_metric_tensors`; nothing when ``metric`` is given) and returns the tuple below.
+    (:func:`.signal_metric.iter_signal_metric_tensors`; nothing when ``metric`` is given) and returns the tuple below.
 
     Returns
     -------
     V, F, uv
-        As from :func:`_check_mesh`.
+        As from :func:`.signal_metric._check_mesh`.
     X : (m, 2, 2) float64 ndarray
     area : (m,) float64 ndarray
         Surface edge matrices in each triangle's plane, and areas (:func:`.evaluation._triangle_frames`).
     metric : (m, 2, 2) float64 ndarray
-        ``metric`` (or :func:`signal_metric_tensors` of ``texture``) blended by :func:`_regularized`.
+        ``metric`` (or :func:`.signal_metric.signal_metric_tensors` of ``texture``) blended by :func:`_regularized`.
     """
     V, F, uv = _check_mesh(V, F, uv)
     X, area = _triangle_frames(V, F)
@@ -110,178 +88,6 @@ def _iter_checked_problem(V, F, uv, texture, metric, geometric_weight, channels,
         metric = yield from iter_signal_metric_tensors(V, F, uv, texture, channels=channels)
     metric = _regularized(_check_metric(metric, F.shape[0]), area, geometric_weight)
     return V, F, uv, X, area, metric
-
-
-def _checked_texture(texture, channels):
-    """``texture`` as an array, its shape and ``channels`` checked; and the empty signal array for it.
-
-    Returns
-    -------
-    texture : ndarray
-    signal : (h, w, 1) or (h, w, 3) float64 ndarray
-        Uninitialized; :func:`_fill_signal` fills it band by band. One contiguous float64 array:
-        :func:`_bilinear_gradient` gathers from its flat rows once per slice.
-    """
-    texture = np.asarray(texture)
-    if texture.ndim not in (2, 3) or texture.shape[0] < 2 or texture.shape[1] < 2:
-        raise ValueError(f"texture must have shape (h, w) or (h, w, c) with h, w >= 2, got {texture.shape}")
-    if channels not in ("all", "luma"):
-        raise ValueError(f"channels must be 'all' or 'luma', got {channels!r}")
-    c = 1 if texture.ndim == 2 else texture.shape[2]
-    if c not in (1, 3, 4):
-        raise ValueError(f"expected 1, 3 or 4 texture channels, got {c}")
-    signal_channels = 3 if c > 1 and channels == "all" else 1
-    return texture, np.empty(texture.shape[:2] + (signal_channels,), dtype=np.float64)
-
-
-def _fill_signal(texture, channels, signal, rows):
-    """Check that the texture ``rows`` (a slice) are finite and write their signal into ``signal[rows]``: the
-    channels as float64 (alpha dropped), or their Rec. 601 luma with ``channels="luma"``."""
-    band = texture[rows]
-    if not np.all(np.isfinite(band)):
-        raise ValueError("texture holds NaN or infinite values")
-    if band.ndim == 2:
-        signal[rows, :, 0] = band
-    elif band.shape[2] == 1:
-        signal[rows] = band
-    elif channels == "luma":
-        signal[rows, :, 0] = luma(band)
-    else:
-        signal[rows] = band[..., :3]
-
-
-def _subdivision_barycentrics(k):
-    """Centroids of the k^2 equal sub-triangles of a k-subdivided triangle, as barycentrics (k^2, 3)."""
-    points = []
-    for i in range(k):
-        for j in range(k - i):
-            points.append(((i + 1 / 3) / k, (j + 1 / 3) / k))
-            if i + j <= k - 2:
-                points.append(((i + 2 / 3) / k, (j + 2 / 3) / k))
-    st = np.array(points)
-    return np.column_stack([1.0 - st.sum(axis=1), st])
-
-
-def _bilinear_gradient(texture, points):
-    """Gradient of the bilinear interpolant (Eq. 9, REPEAT) at texel-space points, per channel.
-
-    Returns (p, c, 2): derivatives with respect to texel coordinates x = u w, y = v h.
-    """
-    h, w = texture.shape[:2]
-    x = points[:, 0] - 0.5
-    y = points[:, 1] - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    ix0 = x0.astype(np.int64) % w
-    row0 = (y0.astype(np.int64) % h) * w
-    ix1 = (ix0 + 1) % w
-    row1 = (row0 + w) % (h * w)
-    flat = texture.reshape(h * w, -1)  # flat rows are much faster to gather than 2-D fancy indices
-    t00 = flat[row0 + ix0]
-    t10 = flat[row0 + ix1]
-    t01 = flat[row1 + ix0]
-    t11 = flat[row1 + ix1]
-    gx = (1 - fy) * (t10 - t00) + fy * (t11 - t01)
-    gy = (1 - fx) * (t01 - t00) + fx * (t11 - t10)
-    return np.stack([gx, gy], axis=-1)
-
-
-def _uv_edges(uv):
-    return np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], axis=2)  # columns: UV edges
-
-
-def _det(M):
-    return M[..., 0, 0] * M[..., 1, 1] - M[..., 0, 1] * M[..., 1, 0]
-
-
-def signal_metric_tensors(V, F, uv, texture, *, channels="all", samples_per_texel=4.0, max_level=16):
-    """Signal-stretch metric tensor of every triangle, ``Gamma_T = integral_T (grad f)(grad f)^T dA``.
-
-    :func:`iter_signal_metric_tensors` is the same computation as a generator that hands control back while it
-    runs.
-
-    Parameters
-    ----------
-    V : (n, 3) array_like of float
-    F : (m, 3) array_like of int
-    uv : (m, 3, 2) array_like of float
-        The UVs through which ``texture`` is mapped onto the surface (the input parameterization).
-    texture : (h, w) or (h, w, c) array_like of float
-        Row 0 is the bottom (v = 0); bilinear with REPEAT, as everywhere in the package.
-    channels : {"all", "luma"}, optional
-        ``"all"`` sums the tensors of the colour channels (alpha ignored); ``"luma"`` uses Rec. 601 luma.
-    samples_per_texel : float, optional
-        Integration points per texel of UV area (the subdivision level is
-        ``ceil(sqrt(samples_per_texel * texel_area))``).
-    max_level : int, optional
-        Cap on the subdivision level (at most ``max_level^2`` points per triangle).
-
-    Returns
-    -------
-    (m, 2, 2) float64 ndarray
-        Symmetric positive semi-definite tensors in each triangle's frame: first axis along the edge from
-        corner 0 to corner 1, second axis in the plane, towards corner 2. Units: signal^2 (a gradient per
-        unit length squared, times an area). Zero for triangles with no surface area.
-
-    References
-    ----------
-    Sander et al. 2002, Sec. 3-4 (signal stretch, pre-integrated metric tensor); Sun et al. 2022, Eq. 9.
-    """
-    return run_generator(iter_signal_metric_tensors(V, F, uv, texture, channels=channels,
-                                                    samples_per_texel=samples_per_texel, max_level=max_level))
-
-
-def iter_signal_metric_tensors(V, F, uv, texture, *, channels="all", samples_per_texel=4.0, max_level=16):
-    """Generator form of :func:`signal_metric_tensors`: yields ``(done, total)`` and returns the tensors.
-
-    ``total`` is the number of triangles with surface area (the ones integrated), ``done`` how many of them are
-    integrated so far. It yields ``(0, total)`` after each band of texture rows it checks and converts, and
-    ``(done, total)`` after each slice of triangles (at most ``_POINTS_PER_SLICE`` integration points); the
-    result does not depend on the slicing, it is bit for bit that of one pass. Use
-    ``metric = yield from iter_signal_metric_tensors(...)`` in a pipeline generator.
-    """
-    V, F, uv = _check_mesh(V, F, uv)
-    texture, signal = _checked_texture(texture, channels)
-    if not samples_per_texel > 0:
-        raise ValueError(f"samples_per_texel must be positive, got {samples_per_texel}")
-    if int(max_level) < 1:
-        raise ValueError(f"max_level must be at least 1, got {max_level}")
-    h, w = signal.shape[:2]
-    m = F.shape[0]
-    X, area = _triangle_frames(V, F)
-    U = _uv_edges(uv)
-    valid = area > 0
-    total = int(np.count_nonzero(valid))
-    # Map from the surface frame to UV: A = U X^-1 (defined wherever the surface triangle is not degenerate).
-    A = np.zeros((m, 2, 2))
-    A[valid] = U[valid] @ inverse_2x2(X[valid])
-
-    rows_per_band = max(1, _TEXELS_PER_SLICE // w)
-    for start in range(0, h, rows_per_band):
-        _fill_signal(texture, channels, signal, slice(start, start + rows_per_band))
-        yield 0, total
-
-    texel_area = 0.5 * np.abs(_det(U)) * w * h
-    level = np.clip(np.ceil(np.sqrt(samples_per_texel * texel_area)), 1, int(max_level)).astype(np.int64)
-    texel_scale = np.array([w, h], dtype=np.float64)
-    gamma_uv = np.zeros((m, 2, 2))  # mean of (grad_uv f)(grad_uv f)^T over the triangle
-    done = 0
-    for k in np.unique(level[valid]):
-        bary = _subdivision_barycentrics(int(k))
-        faces = np.flatnonzero(valid & (level == k))
-        per_slice = max(1, _POINTS_PER_SLICE // bary.shape[0])
-        for start in range(0, faces.size, per_slice):
-            chunk = faces[start:start + per_slice]
-            points = np.einsum("sk,tkd->tsd", bary, uv[chunk]) * texel_scale  # (t, s, 2) texel coords
-            grad = _bilinear_gradient(signal, points.reshape(-1, 2)) * texel_scale  # d/du = w d/dx
-            grad = grad.reshape(chunk.size, bary.shape[0], -1, 2)
-            gamma_uv[chunk] = np.einsum("tscd,tsce->tde", grad, grad) / bary.shape[0]
-            done += chunk.size
-            yield done, total
-    # grad_x f = A^T grad_uv f, so Gamma = |T| A^T E[g g^T] A.
-    return area[:, None, None] * (np.swapaxes(A, 1, 2) @ gamma_uv @ A)
 
 
 def _regularized(gamma, area, geometric_weight):
@@ -310,7 +116,7 @@ def expected_stretch(metric, area):
     Parameters
     ----------
     metric : (m, 2, 2) array_like of float
-        Positive semi-definite tensors ``Gamma_T`` (e.g. from :func:`signal_metric_tensors`, blended with
+        Positive semi-definite tensors ``Gamma_T`` (e.g. from :func:`.signal_metric.signal_metric_tensors`, blended with
         geometric stretch so none is singular).
     area : (m,) array_like of float
         Surface areas ``|T|`` (positive).
@@ -322,7 +128,7 @@ def expected_stretch(metric, area):
         the total UV area equals the surface area: ``sum lambda1 lambda2 |T| = sum |T|``.
     theta : (m,) float64 ndarray
         Angle in ``[0, pi)`` of the direction stretched by ``lambda1`` (the direction of strongest signal
-        change) in the triangle's frame (see :func:`signal_metric_tensors`).
+        change) in the triangle's frame (see :func:`.signal_metric.signal_metric_tensors`).
 
     Raises
     ------
@@ -377,7 +183,7 @@ def ssp_energy(V, F, uv, metric):
     uv : (m, 3, 2) array_like of float
         The UV map to measure.
     metric : (m, 2, 2) array_like of float
-        ``Gamma_T`` in each triangle's frame (:func:`signal_metric_tensors`, usually blended).
+        ``Gamma_T`` in each triangle's frame (:func:`.signal_metric.signal_metric_tensors`, usually blended).
 
     Returns
     -------
@@ -475,12 +281,12 @@ def solve_ssp(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, cha
     texture : (h, w) or (h, w, c) array_like of float, optional
         The signal, mapped through ``uv``; needed unless ``metric`` is given.
     metric : (m, 2, 2) array_like of float, optional
-        Precomputed :func:`signal_metric_tensors` (unblended); ``geometric_weight`` is still applied.
+        Precomputed :func:`.signal_metric.signal_metric_tensors` (unblended); ``geometric_weight`` is still applied.
     geometric_weight : float, optional
         Geometric-stretch blend relative to the mean signal density (module docstring); 0 is pure SSP,
         which lets constant-signal triangles collapse.
     channels : {"all", "luma"}, optional
-        See :func:`signal_metric_tensors`.
+        See :func:`.signal_metric.signal_metric_tensors`.
     max_iterations : int, optional
         L-BFGS iterations at most.
     tol : float, optional
@@ -649,7 +455,7 @@ def ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, c
     texture : (h, w) or (h, w, c) array_like of float, optional
         Needed unless ``metric`` is given.
     metric : (m, 2, 2) array_like of float, optional
-        Precomputed :func:`signal_metric_tensors` (unblended).
+        Precomputed :func:`.signal_metric.signal_metric_tensors` (unblended).
     geometric_weight : float, optional
         Blend of geometric stretch (module docstring).
     channels : {"all", "luma"}, optional
@@ -689,9 +495,9 @@ def ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, c
 def iter_ssp_targets(V, F, uv, texture=None, *, metric=None, geometric_weight=0.01, channels="all"):
     """Generator form of :func:`ssp_targets`: yields ``(done, total)`` and returns ``(params, w_R, w_S)``.
 
-    The yields are those of :func:`iter_signal_metric_tensors` (none when ``metric`` is given); :func:`ssp_targets`
-    is this generator driven to the end. Use ``params, w_R, w_S = yield from iter_ssp_targets(...)`` in a
-    pipeline generator, or drive it one step per timer tick.
+    The yields are those of :func:`.signal_metric.iter_signal_metric_tensors` (none when ``metric`` is given);
+    :func:`ssp_targets` is this generator driven to the end. Use ``params, w_R, w_S = yield from
+    iter_ssp_targets(...)`` in a pipeline generator, or drive it one step per timer tick.
     """
     V, F, uv, X, area, metric = yield from _iter_checked_problem(V, F, uv, texture, metric, geometric_weight,
                                                                  channels, "ssp_targets")

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""core.ssp (Sander et al. 2002): metric tensors, expected stretch, SSP solve and SSPOP targets."""
+"""core.signal_metric and core.ssp (Sander et al. 2002): metric tensors, expected stretch, SSP solve and SSPOP
+targets."""
 import pathlib
 
 import numpy as np
@@ -9,10 +10,10 @@ from perceptual_uv.core.charts import uv_topology
 from perceptual_uv.core.deformation import jacobian
 from perceptual_uv.core.evaluation import _triangle_frames
 from perceptual_uv.core.mesh import read_obj
-from perceptual_uv.core import ssp
+from perceptual_uv.core import signal_metric
 from perceptual_uv.core.progress import run_generator
-from perceptual_uv.core.ssp import (expected_stretch, iter_signal_metric_tensors, iter_ssp_targets,
-                                    signal_metric_tensors, solve_ssp, ssp_energy, ssp_targets)
+from perceptual_uv.core.signal_metric import iter_signal_metric_tensors, signal_metric_tensors
+from perceptual_uv.core.ssp import expected_stretch, iter_ssp_targets, solve_ssp, ssp_energy, ssp_targets
 
 TRIANGLE = np.array([[[0.2, 0.2], [0.8, 0.2], [0.3, 0.9]]])
 FACE = np.array([[0, 1, 2]])
@@ -285,12 +286,12 @@ def test_generator_forms_hand_control_back_and_do_not_depend_on_the_slicing(monk
     uv = 0.1 + 0.8 * uv
     texture = np.random.default_rng(3).random((80, 64, 4))
     V = V + np.array([0.0, 0.0, 0.3]) * np.sin(3 * V[:, :1])  # curved, so the faces' frames differ
-    monkeypatch.setattr(ssp, "_POINTS_PER_SLICE", 1 << 40)
-    monkeypatch.setattr(ssp, "_TEXELS_PER_SLICE", 1 << 40)
+    monkeypatch.setattr(signal_metric, "_POINTS_PER_SLICE", 1 << 40)
+    monkeypatch.setattr(signal_metric, "_TEXELS_PER_SLICE", 1 << 40)
     whole = {channels: (signal_metric_tensors(V, F, uv, texture, channels=channels),
                         ssp_targets(V, F, uv, texture, channels=channels)) for channels in ("all", "luma")}
-    monkeypatch.setattr(ssp, "_POINTS_PER_SLICE", 256)
-    monkeypatch.setattr(ssp, "_TEXELS_PER_SLICE", 640)
+    monkeypatch.setattr(signal_metric, "_POINTS_PER_SLICE", 256)
+    monkeypatch.setattr(signal_metric, "_TEXELS_PER_SLICE", 640)
     for channels, (metric, targets) in whole.items():
         steps, sliced = _steps(iter_signal_metric_tensors(V, F, uv, texture, channels=channels))
         np.testing.assert_array_equal(sliced, metric)
