@@ -410,6 +410,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         stacks = stacked_charts(uv_in, input_charts) if settings.keep_stacks else None
         meshwise = meshwise_results().get(mesh_key) if settings.reuse_triangle_results else None
         if meshwise is None:
+            yield step("mesh", 0, 1, "Starting the mesh-wise fit")  # the islands found: a step apart
             meshwise = yield from iter_meshwise_stage(validated, planes, triangles, topology, stacks, settings, step,
                                                       clock)
             meshwise_results().put(mesh_key, meshwise)
