@@ -404,10 +404,13 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                          "their input shape and size")
 
         clock = time.perf_counter()
-        yield step("mesh", 0, 1, "Finding the UV islands that share texels")
+        finding = step("mesh", 0, 1, "Finding the UV islands that share texels")
+        yield finding
         topology = uv_topology(F, uv_in)
         input_charts = topology.face_chart
-        stacks = stacked_charts(uv_in, input_charts) if settings.keep_stacks else None
+        stacks = None
+        if settings.keep_stacks:  # in a thread: about 0.2 s on sofa_03's 166 islands
+            stacks = yield from report_while_waiting(InThread(stacked_charts, uv_in, input_charts).wait(), finding)
         meshwise = meshwise_results().get(mesh_key) if settings.reuse_triangle_results else None
         if meshwise is None:
             yield step("mesh", 0, 1, "Starting the mesh-wise fit")  # the islands found: a step apart
