@@ -15,6 +15,7 @@ No bpy here: the stage runs on the arrays the pipeline read.
 import dataclasses
 import hashlib
 import pathlib
+import time
 
 import numpy as np
 
@@ -108,8 +109,6 @@ def iter_meshwise_stage(validated, planes, triangles, topology, stacks, settings
     started : float
         ``time.perf_counter()`` at the stage's start, for the time left of the fit.
     """
-    import time
-
     from ..core.chartfit import iter_fit_charts
     from ..core.loss_passes import iter_fit_losses
     from ..core.ssp import iter_ssp_targets
