@@ -26,23 +26,8 @@ from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_sid
                             map_report, map_resolution, material_copies, memory_resolution, read_maps,
                             resolve_source_uv)
 
-__all__ = ["Progress", "STAGE_SHARES", "triangle_results", "PipelineResult", "optimize_objects", "run_to_end",
-           "target_problem", "map_resolution", "COPY_PROPERTY"]
-
-_TRIANGLE_RESULTS = []
-
-
-def triangle_results():
-    """Triangle-wise results of recent runs, keyed by the stage's inputs, settings and code (in memory and in
-    ``core.result_cache.default_cache_folder()``): a rerun that changes only the cost, margin or names (the redo
-    panel, a second CLI run) skips the stage. Made on first use, so importing this module stays light."""
-    if not _TRIANGLE_RESULTS:
-        from ..core.result_cache import ResultCache, default_cache_folder
-        from ..core.trianglewise_result import TrianglewiseResult
-
-        _TRIANGLE_RESULTS.append(ResultCache(TrianglewiseResult, folder=default_cache_folder()))
-    return _TRIANGLE_RESULTS[0]
-
+__all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "run_to_end", "target_problem",
+           "map_resolution", "COPY_PROPERTY"]
 
 @dataclasses.dataclass(frozen=True)
 class Progress:
@@ -339,9 +324,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         from ..core.result_cache import result_key
         from ..core.stacks import packing_islands, stacked_charts, stacked_faces
         from ..core.textured import above_bound
-        from ..core.trianglewise import iter_optimize_triangles
         from .bake import iter_bake_maps
         from .meshwise_stage import iter_meshwise_stage, meshwise_key, meshwise_results
+        from .trianglewise_stage import iter_trianglewise_stage
 
         started = time.perf_counter()  # the run's times leave out loading the modules
         yield step("read", 0, _READ_STEPS, "Reading the mesh")
@@ -372,31 +357,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         for _ in hashing.wait():
             yield step("read", 5, _READ_STEPS, "Looking for the results of an earlier run")
         key, mesh_key = hashing.join()
-        triangles = triangle_results().get(key) if settings.reuse_triangle_results else None
-        if triangles is None:
-            # The faces done by a run of the same key that was cancelled or killed (kept about every half minute).
-            partial_key = f"{key}-partial"
-            known = triangle_results().get(partial_key) if settings.reuse_triangle_results else None
-            if known is not None:
-                run.skip("triangle", len(known.faces), len(faces))
-            stage = iter_optimize_triangles(V, F, uv_in, planes, epsilon=settings.epsilon,
-                                            evaluations=settings.iterations, screen_pixels=settings.screen_pixels,
-                                            max_screen_pixels=settings.max_screen_pixels,
-                                            workers=settings.workers, seed=settings.seed, faces=faces,
-                                            scheduler=settings.scheduler, known=known,
-                                            checkpoint=lambda partial: triangle_results().put(partial_key, partial))
-            triangles = yield from relay_stage(stage, "triangle", "Triangle-wise optimization", clock, step)
-            triangle_results().put(key, triangles)
-            triangle_results().discard(partial_key)
-            if known is not None:
-                notes.append(f"the triangle-wise results of {len(known.faces)} of {len(faces)} triangles were taken "
-                             "from an earlier run on the same input that was stopped before its end")
-        else:
-            notes.append("the triangle-wise results of an earlier run on the same mesh, UV map, texture and settings "
-                         "were reused (Clear Cached Results in the sidebar, or --fresh on the command line, "
-                         "computes them again)")
-            run.skip("triangle", 1, 1)
-            yield step("triangle", 1, 1, "Triangle-wise optimization: reused from an earlier run")
+        triangles, triangle_notes = yield from iter_trianglewise_stage(V, F, uv_in, planes, faces, key, settings, run,
+                                                                       step, clock)
+        notes += triangle_notes
         times["triangle"] = time.perf_counter() - clock
         unevaluated = int(np.count_nonzero(triangles.unevaluated))
         if unevaluated:

@@ -14,7 +14,7 @@ class UV_OT_perceptual_clear_cache(bpy.types.Operator):
 
     def execute(self, context):
         from ..bridge.meshwise_stage import meshwise_results
-        from ..bridge.pipeline import triangle_results
+        from ..bridge.trianglewise_stage import triangle_results
 
         removed = 0
         for cache in (triangle_results(), meshwise_results()):

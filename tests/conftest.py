@@ -47,7 +47,7 @@ def empty_scene():
 
 
 # The modules holding a cache of stage results made on first use, and the list that holds it.
-_STAGE_CACHES = (("perceptual_uv.bridge.pipeline", "_TRIANGLE_RESULTS"),
+_STAGE_CACHES = (("perceptual_uv.bridge.trianglewise_stage", "_TRIANGLE_RESULTS"),
                  ("perceptual_uv.bridge.meshwise_stage", "_MESHWISE_RESULTS"))
 
 

@@ -104,7 +104,8 @@ def test_the_pipeline_reuses_triangle_and_mesh_wise_results_and_only_then(spot_o
     from perceptual_uv.bridge.batch import textured_objects
     from perceptual_uv.bridge.meshwise_stage import meshwise_results
     from perceptual_uv.bridge.mesh_io import import_model
-    from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end, triangle_results
+    from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end
+    from perceptual_uv.bridge.trianglewise_stage import triangle_results
     from perceptual_uv.core.settings import OptimizeSettings
 
     def run(**settings):  # each run on a fresh copy of the file, as the redo panel's undo gives it
@@ -145,7 +146,8 @@ def test_a_run_stopped_in_the_triangle_wise_stage_resumes_from_the_faces_done(sp
     from conftest import reset_blender_scene
     from perceptual_uv.bridge.batch import textured_objects
     from perceptual_uv.bridge.mesh_io import import_model
-    from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end, triangle_results
+    from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end
+    from perceptual_uv.bridge.trianglewise_stage import triangle_results
     from perceptual_uv.core import trianglewise
     from perceptual_uv.core.settings import OptimizeSettings
 
