@@ -5,17 +5,15 @@ Colour and data maps (base colour, emissive, metallic-roughness / ORM, occlusion
 maps, any other data) are copied value for value: an Emission shader emits the stored values of the original
 image (a Non-Color float copy) through the original UV map and Cycles bakes EMIT. A tangent-space normal map is
 expressed in its UV map's tangent frame, which the new UV map changes: :mod:`.bake_normal` bakes it as NORMAL into
-the frame of the new UV map, on the bake pass of this module. Which material slots read a map, and what the others
+the frame of the new UV map. Both bake on :func:`.cycles_bake.bake_pass`. Which material slots read a map, and what the others
 contribute, comes from :mod:`.map_reads`.
 
 Everything happens on temporary copies in a temporary scene: the object, its mesh, materials, images and the
 user's scene settings are left exactly as they were; the only thing that stays is the new image.
 
-Cycles writes only texels whose centres lie in a target triangle inside [0, 1]^2. A target UV map that leaves the
-unit square (renderers sample it with REPEAT) is baked once per integer tile it touches, shifted into the unit
-square, and the tiles are composited into the one image. Texels that bilinear lookups read next to a triangle but
-whose centres no triangle covers (thin strips, charts smaller than a texel) then get the source value of the
-triangle's nearest point (:func:`_footprints`), and the margin extends from all of these.
+Texels that bilinear lookups read next to a triangle but whose centres no triangle covers (thin strips, charts
+smaller than a texel) get the source value of the triangle's nearest point (:func:`_fill_footprints`), and the
+margin extends from all of these (:mod:`.cycles_bake`).
 """
 import contextlib
 import dataclasses
@@ -23,11 +21,11 @@ import functools
 
 import bpy
 import numpy as np
-import scipy.ndimage
 
-from ..core.footprint import footprint_texels
 from ..core.progress import InThread, report_while_waiting, run_generator
 from ..core.raster import sample_bilinear
+from .bake_normal import bake_tangent_normal
+from .cycles_bake import bake_pass, extend_margin, footprints, touched_tiles
 from .image_file import image_is_float
 from .map_reads import _map_sources, _reading_records, _slot_sources, bake_kind, has_transform, transform_problem
 from .mesh_io import read_image, read_mesh
@@ -35,21 +33,6 @@ from .mesh_io import read_image, read_mesh
 __all__ = ["bake_base_color", "bake_maps", "iter_bake_maps", "bake_map_pixels", "BakeResult", "MAX_TILES"]
 
 MAX_TILES = 64
-
-
-@contextlib.contextmanager
-def _temporary_ids():
-    """Collects ID blocks created inside; removes them all on exit, whatever happens."""
-    created = []
-    try:
-        yield created
-    finally:
-        for block in reversed(created):
-            with contextlib.suppress(ReferenceError):
-                collection = {bpy.types.Object: bpy.data.objects, bpy.types.Mesh: bpy.data.meshes,
-                              bpy.types.Material: bpy.data.materials, bpy.types.Image: bpy.data.images,
-                              bpy.types.Scene: bpy.data.scenes}.get(type(block), bpy.data.node_groups)
-                collection.remove(block)
 
 
 def _raw_copy(image):
@@ -128,35 +111,6 @@ def _has_alpha(image):
     return bool(pixels[3::4].min() < 1.0)
 
 
-def _touched_tiles(objects, target_uv, resolution):
-    """Integer tiles (floor u, floor v) holding texel centres inside the polygons' target-UV bounding boxes.
-
-    Counting centres, not areas, keeps a unit-square map (or one a float step past 1) on tile (0, 0) alone: the
-    centres of tile t lie in [t + 0.5 / r, t + 1 - 0.5 / r], so a box reaching less than half a texel into a
-    tile cannot cover any of them.
-    """
-    half = 0.5 / resolution
-    tiles = set()
-    for obj in objects:
-        mesh = obj.data
-        if not len(mesh.polygons):
-            continue
-        uv = np.empty(2 * len(mesh.loops))
-        mesh.uv_layers[target_uv].uv.foreach_get("vector", uv)
-        uv = uv.reshape(-1, 2)
-        starts = np.empty(len(mesh.polygons), dtype=np.int64)
-        mesh.polygons.foreach_get("loop_start", starts)
-        low = np.ceil(np.minimum.reduceat(uv, starts) + half) - 1
-        high = np.floor(np.maximum.reduceat(uv, starts) - half)
-        finite = np.isfinite(low).all(axis=1) & np.isfinite(high).all(axis=1)
-        low, high = low[finite].astype(np.int64), high[finite].astype(np.int64)
-        single = (low == high).all(axis=1)
-        tiles.update(map(tuple, np.unique(low[single], axis=0).tolist()))
-        for (u0, v0), (u1, v1) in zip(low[~single].tolist(), high[~single].tolist()):
-            tiles.update((u, v) for u in range(u0, u1 + 1) for v in range(v0, v1 + 1))
-    return sorted(tiles, key=lambda tile: (tile != (0, 0), tile))
-
-
 def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel, tiles=((0, 0),), sources=None):
     """Bake one channel group ("COLOR" or "ALPHA") of ``objects`` into a float (r, r, 4) array.
 
@@ -164,7 +118,7 @@ def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel,
     slot's base-colour image. ``tiles`` lists the integer UV tiles of ``target_uv`` to bake, tile (0, 0) first
     when present. Cycles writes the covered texels; the texels bilinear lookups read next to a triangle get the
     source colour of the triangle's nearest point (:func:`_fill_footprints`), and the margin extends from both
-    (:func:`_extend_margin`).
+    (:func:`.cycles_bake.extend_margin`).
     """
     if sources is None:
         sources = [_slot_sources(obj) for obj in objects]
@@ -176,115 +130,13 @@ def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel,
     def material_key(object_index, slot_index):
         return _emission_key(*sources[object_index][slot_index])
 
-    pixels, covered = _bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
+    pixels, covered = bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
                                  resolution=resolution, tiles=tiles, bake_type="EMIT",
                                  slots=[len(slot_sources) for slot_sources in sources])
     _fill_footprints(pixels, covered, objects, source_uv=source_uv, target_uv=target_uv, channel=channel,
                      sources=sources)
-    _extend_margin(pixels, covered, margin)
+    extend_margin(pixels, covered, margin)
     return pixels
-
-
-def _bake_pass(objects, material_for, material_key, *, source_uv, target_uv, resolution, tiles, bake_type,
-               slots):
-    """One Cycles bake of ``objects`` (proxies in a temporary scene) into (r, r, 4) pixels and the covered texels.
-
-    ``material_for(created, object_index, slot_index, target)`` gives a proxy slot its material, with an
-    Image Texture node holding ``target`` active; it is called once per value of ``material_key(object_index,
-    slot_index)``, and the slots with equal keys share that material (objects sharing a material would otherwise
-    each hold a copy of its images, and Cycles a texture of each copy). ``bake_type`` "EMIT", or "NORMAL"
-    (tangent space: the proxies' active UV map, whose tangents Blender uses, is the target map; the render UV map,
-    which image nodes without coordinates read, is ``source_uv``).
-    """
-    with _temporary_ids() as created:
-        target = bpy.data.images.new("perceptual_uv_bake_target", resolution, resolution, alpha=False,
-                                     float_buffer=True)
-        created.append(target)
-        target.colorspace_settings.name = "Non-Color"
-        scene = bpy.data.scenes.new("perceptual_uv_bake")
-        created.append(scene)
-        scene.render.engine = "CYCLES"
-        scene.cycles.device = "CPU"
-        scene.cycles.samples = 1
-        view_layer = scene.view_layers[0]
-        proxies, materials = [], {}
-        for object_index, obj in enumerate(objects):
-            mesh = obj.data.copy()
-            created.append(mesh)
-            proxy = bpy.data.objects.new("perceptual_uv_bake", mesh)
-            created.append(proxy)
-            proxies.append(proxy)
-            proxy.matrix_world = obj.matrix_world
-            scene.collection.objects.link(proxy)
-            proxy.select_set(True, view_layer=view_layer)
-            if not mesh.materials:
-                mesh.materials.append(None)
-            for slot_index in range(min(slots[object_index], len(mesh.materials))):
-                key = material_key(object_index, slot_index)
-                if key not in materials:
-                    materials[key] = material_for(created, object_index, slot_index, target)
-                mesh.materials[slot_index] = materials[key]
-        view_layer.objects.active = proxies[0]
-        options = dict(normal_space="TANGENT") if bake_type == "NORMAL" else {}
-
-        def bake(uv_layer):
-            with bpy.context.temp_override(scene=scene, view_layer=view_layer, active_object=proxies[0],
-                                           object=proxies[0], selected_objects=proxies,
-                                           selected_editable_objects=proxies):
-                bpy.ops.object.bake(type=bake_type, uv_layer=uv_layer, margin=0, use_clear=False,
-                                    target="IMAGE_TEXTURES", **options)
-            pixels = np.empty(resolution * resolution * 4, dtype=np.float32)
-            target.pixels.foreach_get(pixels)
-            return pixels.reshape(resolution, resolution, 4)
-
-        return _bake_tiles(bake, target, [proxy.data for proxy in proxies], source_uv=source_uv,
-                           target_uv=target_uv, tiles=tiles, tangent_from_target=bake_type == "NORMAL")
-
-
-_TILE_UV = "perceptual_uv_bake_tile"
-# Texels the bake does not write keep what was there before (use_clear=False); Cycles writes alpha 1, so an
-# alpha of -1 marks "not covered by this tile".
-_UNWRITTEN = -1.0
-
-
-def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, tiles, tangent_from_target=False):
-    """Bake each tile of ``target_uv`` shifted into the unit square and composite the tiles (see _bake_channel).
-
-    Returns the (r, r, 4) pixels, black and opaque where no tile wrote, and the (r, r) texels written.
-    Coverage comes from Cycles itself (texels still holding the sentinel after a bake were not written) rather
-    than from rasterising the triangles again in numpy: it is exactly the set of texels Cycles considers inside,
-    whatever its rule for centres on an edge, and it works for any polygon Cycles triangulates.
-    """
-    bases = []
-    for mesh in meshes:
-        base = np.empty(2 * len(mesh.loops))
-        mesh.uv_layers[target_uv].uv.foreach_get("vector", base)
-        bases.append(base.reshape(-1, 2))
-        # A layer of its own, so shifting it never moves the source lookup (source_uv may be target_uv); the
-        # other layers of the copy are unused, and removing them keeps room under Blender's 8 UV maps.
-        for name in [layer.name for layer in mesh.uv_layers if layer.name != source_uv]:
-            mesh.uv_layers.remove(mesh.uv_layers[name])
-        mesh.uv_layers.new(name=_TILE_UV)
-        # Image nodes of a material copy without coordinates read the render UV map: the source map.
-        mesh.uv_layers[source_uv].active_render = True
-        if tangent_from_target:
-            # Tangents (MikkTSpace) of the shifted target map are those of the target map: a shift keeps them.
-            mesh.uv_layers.active = mesh.uv_layers[_TILE_UV]
-    resolution = target.size[0]
-    pixels = np.zeros((resolution, resolution, 4), dtype=np.float32)
-    pixels[..., 3] = 1.0  # what use_clear leaves outside the islands and the margin
-    covered = np.zeros((resolution, resolution), dtype=bool)
-    sentinel = np.full(resolution * resolution * 4, _UNWRITTEN, dtype=np.float32)
-    for tile in tiles:
-        for mesh, base in zip(meshes, bases):
-            mesh.uv_layers[_TILE_UV].uv.foreach_set("vector", (base - tile).ravel())
-        target.pixels.foreach_set(sentinel)
-        baked = bake(_TILE_UV)
-        # Tile (0, 0) comes first and keeps its texels; the other tiles only fill texels it left uncovered.
-        new = (baked[..., 3] != _UNWRITTEN) & ~covered
-        pixels[new] = baked[new]
-        covered |= new
-    return pixels, covered
 
 
 def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel, sources=None):
@@ -299,7 +151,7 @@ def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel,
     if sources is None:
         sources = [_slot_sources(obj) for obj in objects]
     for obj, (mesh, rows, columns, local, bary), object_sources in zip(
-            objects, _footprints(objects, covered, target_uv=target_uv), sources):
+            objects, footprints(objects, covered, target_uv=target_uv), sources):
         if not len(local):
             continue
         source = read_mesh(obj, uv_name=source_uv).uv
@@ -321,46 +173,6 @@ def _fill_footprints(pixels, covered, objects, *, source_uv, target_uv, channel,
         values[:, 3] = 1.0  # as Cycles writes
         pixels[rows, columns] = values
         covered[rows, columns] = True
-
-
-def _footprints(objects, covered, *, target_uv):
-    """Per object, the texels next to its triangles that Cycles left empty (:func:`core.footprint.footprint_texels`
-    over all objects' triangles on ``target_uv``, each texel given to the object of its nearest triangle).
-
-    Returns
-    -------
-    list of tuple
-        Per object ``(mesh, rows, columns, face, bary)``: its :class:`.mesh_io.MeshArrays` read on ``target_uv``;
-        (p,) int64 rows and columns of its texels; (p,) int64 indices of their nearest triangles in ``mesh``;
-        (p, 3) float64 barycentric coordinates of those triangles' points nearest to the texel centres.
-    """
-    meshes = [read_mesh(obj, uv_name=target_uv) for obj in objects]
-    rows, columns, face, bary = footprint_texels(np.concatenate([mesh.uv for mesh in meshes]), covered)
-    found, start = [], 0
-    for mesh in meshes:
-        mine = (face >= start) & (face < start + len(mesh.F))
-        found.append((mesh, rows[mine], columns[mine], face[mine] - start, bary[mine]))
-        start += len(mesh.F)
-    return found
-
-
-def _extend_margin(pixels, covered, margin):
-    """A margin like Cycles' EXTEND: uncovered texels within ``margin`` of a covered one take its value (in place).
-
-    Distances wrap around the image borders: an island reaching an edge here continues on the other side under
-    REPEAT, and bilinear lookups across the edge read the margin there (a margin stopping at the edges shows as
-    dark pixels along islands that reach them).
-    """
-    if margin <= 0 or not covered.any() or covered.all():
-        return
-    resolution = covered.shape[0]
-    padded = np.pad(~covered, margin, mode="wrap")
-    distance, (rows, columns) = scipy.ndimage.distance_transform_edt(padded, return_indices=True)
-    inner = (slice(margin, margin + resolution),) * 2
-    rows = (rows[inner] - margin) % resolution
-    columns = (columns[inner] - margin) % resolution
-    fill = ~covered & (distance[inner] <= margin)
-    pixels[fill] = pixels[rows[fill], columns[fill]]
 
 
 def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_name):
@@ -476,10 +288,10 @@ def _bake_transformed(objects, record, sources, *, source_uv, target_uv, resolut
         material = objects[object_index].material_slots[slot_index].material
         return "node", material.as_pointer(), own.nodes[0].name
 
-    pixels, covered = _bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
+    pixels, covered = bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
                                  resolution=resolution, tiles=tiles, bake_type="EMIT",
                                  slots=[len(slot_records) for slot_records in per_slot])
-    _extend_margin(pixels, covered, margin)
+    extend_margin(pixels, covered, margin)
     return pixels
 
 
@@ -490,7 +302,7 @@ def _check_objects(objects, source_uv, target_uv, resolution):
         for name in (source_uv, target_uv):
             if name not in obj.data.uv_layers:
                 raise ValueError(f"'{obj.name}' has no UV map '{name}'")
-    tiles = _touched_tiles(objects, target_uv, resolution)
+    tiles = touched_tiles(objects, target_uv, resolution)
     if len(tiles) > MAX_TILES:
         raise ValueError(f"UV map '{target_uv}' spans {len(tiles)} texture tiles (at most {MAX_TILES} are baked, one "
                          f"Cycles bake each): bake onto a UV map inside [0, 1], e.g. a packed copy")
@@ -626,7 +438,6 @@ def bake_map_pixels(objects, record, *, source_uv, target_uv, resolution, margin
     tiles = _check_objects(objects, source_uv, target_uv, resolution)
     common = dict(source_uv=source_uv, target_uv=target_uv, resolution=resolution, margin=int(margin), tiles=tiles)
     if bake_kind(record) == "normal":
-        from .bake_normal import bake_tangent_normal  # bake_normal builds on this module's bake pass
         return bake_tangent_normal(objects, record, **common), False
     sources = _map_sources(objects, record, source_uv)
     if has_transform(record):

@@ -21,7 +21,7 @@ import numpy as np
 from ..core.footprint import footprint_texels
 from ..core.raster import sample_bilinear
 from ..core.tangent_frame import interpolate_frame, object_to_tangent, tangent_to_object
-from .bake import _bake_pass, _extend_margin, _footprints, _temporary_ids
+from .cycles_bake import bake_pass, extend_margin, footprints, temporary_ids
 from .map_reads import _all_nodes, _reads, has_transform, localize_node_groups
 from .mesh_io import read_image, read_mesh
 
@@ -105,7 +105,7 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
     margin : int
         Bake margin in pixels, extended from the written texels across the image edges.
     tiles : sequence of tuple of int
-        The integer UV tiles of ``target_uv`` to bake (``bake._touched_tiles``), tile (0, 0) first.
+        The integer UV tiles of ``target_uv`` to bake (:func:`.cycles_bake.touched_tiles`), tile (0, 0) first.
 
     Returns
     -------
@@ -129,7 +129,7 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
         material = baked_material(object_index, slot_index)
         return material.as_pointer() if material is not None else None
 
-    pixels, covered = _bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
+    pixels, covered = bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
                                  resolution=resolution, tiles=tiles, bake_type="NORMAL",
                                  slots=[len(slot_reads) for slot_reads in reads])
     if not has_transform(record):  # the lookups below read the source UV map without the node's transform
@@ -137,7 +137,7 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
         for obj, (mesh, rows, columns, face, bary) in zip(objects, folds):
             values, known = normal_values(obj, record, mesh, face, bary, source_uv=source_uv, target_uv=target_uv)
             pixels[rows[known], columns[known], :3] = values[known]
-        for obj, (mesh, rows, columns, face, bary) in zip(objects, _footprints(objects, covered,
+        for obj, (mesh, rows, columns, face, bary) in zip(objects, footprints(objects, covered,
                                                                                 target_uv=target_uv)):
             values, known = normal_values(obj, record, mesh, face, bary, source_uv=source_uv, target_uv=target_uv)
             rows, columns = rows[known], columns[known]
@@ -145,7 +145,7 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
             covered[rows, columns] = True
     pixels[~covered, :3] = FLAT  # where no triangle and no margin reaches
     pixels[..., 3] = 1.0
-    _extend_margin(pixels, covered, margin)
+    extend_margin(pixels, covered, margin)
     return pixels
 
 
@@ -156,7 +156,7 @@ def _fold_texels(objects, covered, *, target_uv):
     Returns
     -------
     list of tuple
-        Per object ``(mesh, rows, columns, face, bary)`` as :func:`.bake._footprints` gives them, for texels of
+        Per object ``(mesh, rows, columns, face, bary)`` as :func:`.cycles_bake.footprints` gives them, for texels of
         ``covered`` strictly inside a fold on ``target_uv``; ``bary`` is the texel centre's.
     """
     found = []
@@ -192,7 +192,7 @@ def _corner_frames(obj, source_uv, target_uv):
     """
     if any(polygon.loop_total > 4 for polygon in obj.data.polygons):
         return None
-    with _temporary_ids() as created:
+    with temporary_ids() as created:
         mesh = obj.data.copy()
         created.append(mesh)
         normals = _get(mesh.corner_normals, "vector", (len(mesh.loops), 3))

@@ -4,7 +4,8 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-from perceptual_uv.bridge.bake import _touched_tiles, bake_base_color  # noqa: E402
+from perceptual_uv.bridge.bake import bake_base_color  # noqa: E402
+from perceptual_uv.bridge.cycles_bake import touched_tiles  # noqa: E402
 from perceptual_uv.bridge.pack import pack_uv_layer  # noqa: E402
 
 pytestmark = pytest.mark.bpy
@@ -240,7 +241,7 @@ def test_bake_of_a_quad_in_tile_1_1_equals_the_same_quad_in_tile_0_0():
     shifted = read_uv(obj, "Shifted")
     # A map in the unit square, even a float step past it, is baked once, as tile (0, 0); the shifted one as (1, 1).
     obj.data.uv_layers.new(name="Slop").uv.foreach_set("vector", (square * (1 + 1e-6)).ravel())
-    assert [_touched_tiles([obj], name, 16) for name in ("UVMap", "Slop", "Shifted")] == [[(0, 0)], [(0, 0)], [(1, 1)]]
+    assert [touched_tiles([obj], name, 16) for name in ("UVMap", "Slop", "Shifted")] == [[(0, 0)], [(0, 0)], [(1, 1)]]
     obj.data.uv_layers.remove(obj.data.uv_layers["Slop"])
     counts = {name: len(getattr(bpy.data, name)) for name in ("objects", "meshes", "materials", "images", "scenes")}
 
