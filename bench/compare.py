@@ -6,7 +6,7 @@ Usage (from /work, the repo's parent folder)::
     main/.venv/bin/python -m perceptual_uv.bench.compare --models shared/models --costs 0.1,0.2,0.3,0.5 \\
         --out main/docs/results [--evaluations 100] [--epsilons 0.005,0.02] [--methods input,repacked,...] \\
         [--screen 512] [--workers 0] [--cache DIR | --no-cache] [--reuse input,repacked,...] \\
-        [--triangles CACHE_DIR] [--shaded]
+        [--triangles CACHE_DIR] [--seed 0] [--shaded]
     main/.venv/bin/python -m perceptual_uv.bench.compare --summary main/docs/results
 
 Per model: ``<model>_q_vs_c.png``, ``<model>.md``, ``<model>.json`` and ``<model>_crops_c030.png``;
@@ -142,9 +142,9 @@ class UVMaps:
     """Makes one UV map per method on the objects (the triangle-wise stage runs once per epsilon, options and loss
     planes) and keeps times."""
 
-    def __init__(self, objects, source, *, evaluations, epsilon, workers, cache=None):
+    def __init__(self, objects, source, *, evaluations, epsilon, workers, cache=None, seed=0):
         self.objects, self.source = objects, source
-        self.evaluations, self.epsilon, self.workers = evaluations, epsilon, workers
+        self.evaluations, self.epsilon, self.workers, self.seed = evaluations, epsilon, workers, int(seed)
         self.cache = cache  # (folder, model stem) or None
         self.times, self._triangles, self._planes = {}, {}, {}
         self.reports = {}  # per method: what bridge.baselines returned (timings, restored and turned charts)
@@ -176,10 +176,11 @@ class UVMaps:
             cache = None
             if self.cache is not None:
                 folder, stem = self.cache
-                cache = folder / f"{stem}_eps{epsilon:g}_n{self.evaluations}{label}.npz"
+                seed = f"_seed{self.seed}" if self.seed else ""
+                cache = folder / f"{stem}_eps{epsilon:g}_n{self.evaluations}{seed}{label}.npz"
             self._triangles[epsilon, label], t = baselines.triangle_targets(
                 self.objects, source_uv=self.source, epsilon=epsilon, evaluations=self.evaluations,
-                workers=self.workers, cache=cache, planes=planes, **options)
+                workers=self.workers, seed=self.seed, cache=cache, planes=planes, **options)
             name = "triangle" if epsilon == self.epsilon else f"triangle_eps{epsilon:g}"
             self.times[name + label] = t
         return self._triangles[epsilon, label]
@@ -303,8 +304,10 @@ def model_hash(path):
     return digest.hexdigest()
 
 
-def method_settings(method, *, costs, screen, evaluations, epsilon, shaded=False):
-    """The settings a method's result depends on (the flat mode's keys carry no ``shaded`` entry)."""
+def method_settings(method, *, costs, screen, evaluations, epsilon, shaded=False, seed=0):
+    """The settings a method's result depends on (the flat mode's keys carry no ``shaded`` entry, and the
+    triangle-wise stage's seed enters ours' keys only when it is not 0, so results measured before ``--seed``
+    existed keep their keys)."""
     settings = dict(costs=sorted(float(c) for c in costs), screen=int(screen))
     if shaded:
         from ..bridge.evaluate_shaded import SAMPLES
@@ -315,6 +318,8 @@ def method_settings(method, *, costs, screen, evaluations, epsilon, shaded=False
         settings.update(evaluations=int(evaluations), epsilon=eps, variant=OURS_VARIANTS.get(method, {}),
                         triangle_options=TRIANGLE_OPTIONS.get(method, {}),
                         loss_maps=LOSS_MAPS.get(method, "material"))
+        if seed:
+            settings.update(seed=int(seed))
     return settings
 
 
@@ -328,9 +333,9 @@ class ResultCache:
     """One folder per model of per-method results, ``<folder>/<model>/<method>-<key>.json`` (see the module
     docstring); ``folder`` None keeps nothing."""
 
-    def __init__(self, folder, *, costs, screen, evaluations, epsilon, shaded=False):
+    def __init__(self, folder, *, costs, screen, evaluations, epsilon, shaded=False, seed=0):
         self.folder = None if folder is None else pathlib.Path(folder)
-        self.settings = dict(costs=costs, screen=screen, evaluations=evaluations, epsilon=epsilon)
+        self.settings = dict(costs=costs, screen=screen, evaluations=evaluations, epsilon=epsilon, seed=seed)
         self.shaded = bool(shaded)
         if shaded:
             self.settings["shaded"] = True
@@ -503,7 +508,7 @@ def _memory_verdict(figures, memory):
     return verdict + (f" ({', '.join(unmeasured)} not measured there)" if unmeasured else "")
 
 
-def _previous_results(file, methods, *, costs, screen):
+def _previous_results(file, methods, *, costs, screen, seed=0):
     """Results and making times of ``methods`` from an earlier ``<model>.json``, checked to match this run."""
     if not methods:
         return {}, {}
@@ -513,6 +518,9 @@ def _previous_results(file, methods, *, costs, screen):
     missing = [m for m in methods if m not in data["results"]]
     if missing:
         raise SystemExit(f"--reuse: {file} has no results for {missing}")
+    measured_seed = data.get("table", {}).get("seed", 0)
+    if measured_seed != seed:
+        raise SystemExit(f"--reuse: {file} was measured with --seed {measured_seed}, this run has {seed}")
     for method in methods:
         result = data["results"][method]
         # ours' points may go below the costs (the pixel saving's crossing)
@@ -522,7 +530,7 @@ def _previous_results(file, methods, *, costs, screen):
 
 
 def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilons, workers, out, reuse=(),
-                  triangles=None, cache=None, progress=None, shaded=False):
+                  triangles=None, cache=None, progress=None, shaded=False, seed=0):
     """Runs every method on one model file and writes its plot, crops, markdown table and JSON; returns the table.
 
     With ``shaded`` every method is measured by ``bridge.evaluate_shaded`` (whole material, q_r per map), the
@@ -543,7 +551,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
 
     stem = path.stem + ("_shaded" if shaded else "")
     reused, reused_times = _previous_results(out / f"{stem}.json", [m for m in methods if m in reuse], costs=costs,
-                                             screen=screen)
+                                             screen=screen, seed=seed)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     import_model(path)
     objects = textured_objects()
@@ -565,7 +573,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
             return evaluate_uv_map(objects, name, reference_uv=source, costs=method_costs, screen_pixels=screen,
                                    reference_views=reference)
     maps = UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers,
-                   cache=None if triangles is None else (triangles, path.stem))
+                   cache=None if triangles is None else (triangles, path.stem), seed=seed)
     names, results, cached_times, cached = {"input": source}, {}, {}, []
     # Blender keeps at most 8 UV maps per mesh: each map is evaluated as soon as it exists and then removed,
     # except the two the crops and the pixel saving need.
@@ -623,7 +631,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
             cache.save(path, "ours", result=results["ours"], times=entry["times"], uv=entry.get("uv"))
     surface_area = float(symmetric_dirichlet(V, F, uv, full=True)[1]["area"])
     table = dict(model=stem, vertices=len(V), faces=len(F), surface_area=surface_area, input_resolution=r_input,
-                 input_cost=float(texel_cost(uv, r_input)), epsilon=epsilon, evaluations=evaluations,
+                 input_cost=float(texel_cost(uv, r_input)), epsilon=epsilon, evaluations=evaluations, seed=seed,
                  screen_pixels=screen, t_triangle=times.get("triangle"), t_mesh=times.get("mesh"),
                  pixel_saving=saving, beaten_by=_wins(results), failures=failures, reused=sorted(reused),
                  cached=sorted(cached))
@@ -645,6 +653,11 @@ def _write_map(objects, name, uv):
     _write(objects, name, uv)
 
 
+def _seed_text(table):
+    """``", seed N"`` for a run with the triangle-wise stage's seed N other than 0, else nothing."""
+    return f", seed {table['seed']}" if table.get("seed") else ""
+
+
 def _fmt_time(t):
     return "-" if t is None else f"{t:.1f} s"
 
@@ -653,7 +666,7 @@ def _model_markdown(table, results, costs):
     lines = [f"## {table['model']}", "",
              f"#V {table['vertices']} / #F {table['faces']}, input r {table['input_resolution']}, c_input "
              f"{table['input_cost']:.0f}, epsilon {table['epsilon']}, {table['evaluations']} evaluations per "
-             f"triangle, t_triangle {_fmt_time(table['t_triangle'])} / t_mesh {_fmt_time(table['t_mesh'])}, "
+             f"triangle{_seed_text(table)}, t_triangle {_fmt_time(table['t_triangle'])} / t_mesh {_fmt_time(table['t_mesh'])}, "
              f"q at {table['screen_pixels']} px (20 views)", "",
              "| method | " + " | ".join(f"q @ c_r={c}" for c in costs) + " | E_iso / area (Eq. 24; 1 = isometric) |",
              "|---" * (len(costs) + 2) + "|"]
@@ -849,6 +862,9 @@ def main(argv=None):
     parser.add_argument("--cache", type=pathlib.Path, help="folder of per-method results (default: <out>/cache)")
     parser.add_argument("--no-cache", action="store_true", help="measure every method again and keep nothing")
     parser.add_argument("--triangles", type=pathlib.Path, help="folder that keeps the triangle-wise results")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of the triangle-wise stage (ours and its variants, paper); a few seeds show how much "
+                             "q_r moves with the optimizer's random choices alone")
     parser.add_argument("--summary", type=pathlib.Path, help="only rebuild summary.md in this folder")
     parser.add_argument("--shaded", action="store_true",
                         help="evaluate the whole material under fixed lights (Cycles) with q_r per map; adds the "
@@ -875,7 +891,7 @@ def main(argv=None):
     if args.triangles:
         args.triangles.mkdir(parents=True, exist_ok=True)
     cache = ResultCache(None if args.no_cache else args.cache or args.out / "cache", costs=costs, screen=args.screen,
-                        evaluations=args.evaluations, epsilon=args.epsilon, shaded=args.shaded)
+                        evaluations=args.evaluations, epsilon=args.epsilon, shaded=args.shaded, seed=args.seed)
     models = _models(args.models)
     every = list(methods) + [_epsilon_method(e) for e in epsilons]
     to_measure = {path: [m for m in every if m not in reuse and not (cache.folder and cache.file(path, m).is_file())]
@@ -886,7 +902,7 @@ def main(argv=None):
         print(compare_model(path, costs=costs, methods=methods, evaluations=args.evaluations, screen=args.screen,
                             epsilon=args.epsilon, epsilons=epsilons, workers=args.workers, out=args.out,
                             reuse=reuse, triangles=args.triangles, cache=cache, progress=progress,
-                            shaded=args.shaded),
+                            shaded=args.shaded, seed=args.seed),
               flush=True)
     print(write_summary(args.out))
     return 0

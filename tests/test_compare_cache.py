@@ -78,6 +78,42 @@ def test_settings_that_a_method_ignores_do_not_change_its_key():
     assert key != method_key("SSP", model="n", settings=ssp, code="c")
 
 
+def test_the_seed_enters_the_keys_of_the_methods_it_changes_and_only_when_not_0():
+    """Results measured before ``--seed`` existed (seed 0) keep their keys; another seed is another result for ours
+    and its variants, and changes nothing for a method without a triangle-wise stage."""
+    kw = dict(costs=[0.3], screen=512, evaluations=100, epsilon=0.01)
+    assert method_settings("ours", **kw, seed=0) == method_settings("ours", **kw)
+    assert "seed" not in method_settings("ours", **kw)
+    assert method_settings("ours", **kw, seed=2)["seed"] == 2
+    assert method_settings("paper", **kw, seed=2)["seed"] == 2
+    assert method_settings("SSP", **kw, seed=2) == method_settings("SSP", **kw)
+    model = dict(model="m", code="c")
+    assert method_key("ours", settings=method_settings("ours", **kw, seed=1), **model) != \
+        method_key("ours", settings=method_settings("ours", **kw), **model)
+
+
+def test_the_seed_reaches_the_triangle_wise_stage_and_its_cache_file(monkeypatch, tmp_path):
+    from perceptual_uv.bridge import baselines
+
+    calls = []
+    monkeypatch.setattr(baselines, "loss_planes", lambda objects, source_uv, maps: ("plane",))
+    monkeypatch.setattr(baselines, "triangle_targets", lambda objects, **kw: calls.append(kw) or ("result", 1.0))
+    for seed in (0, 3):
+        maps = compare.UVMaps([], "UVMap", evaluations=100, epsilon=0.01, workers=1, cache=(tmp_path, "m"), seed=seed)
+        assert maps.triangles(0.01) == "result"
+    assert [call["seed"] for call in calls] == [0, 3]
+    assert [call["cache"].name for call in calls] == ["m_eps0.01_n100.npz", "m_eps0.01_n100_seed3.npz"]
+
+
+def test_reuse_refuses_results_of_another_seed(tmp_path):
+    file = tmp_path / "m.json"
+    result = {"screen_pixels": 512, "points": [_point(0.3, 0.01)]}
+    file.write_text(json.dumps({"table": {"seed": 1}, "results": {"ours": result}, "times_s": {}}))
+    with pytest.raises(SystemExit, match="--seed 1, this run has 0"):
+        compare._previous_results(file, ["ours"], costs=[0.3], screen=512)
+    assert compare._previous_results(file, ["ours"], costs=[0.3], screen=512, seed=1)[0] == {"ours": result}
+
+
 def _point(c, q):
     return {"target_cost": c, "relative_cost": c, "q": q, "resolution": 64}
 
