@@ -280,7 +280,6 @@ class _Search:
         self.V = np.empty((gp.X.shape[0], total))
         self.squares = np.zeros(total)
         self.pool_rows = 0
-        self.top_score = np.inf
         self._step_scales = np.repeat(self._SCALES, -(-local_size // len(self._SCALES)))[:local_size]
 
     def hyperparameters_changed(self):
@@ -321,7 +320,7 @@ class _Search:
             _append_rows_numba(self.V, self.squares, gp.L, gp.X, 0, n, self.C, P, len(self.C), inv_length,
                                self.periodic)
         mean = _leading_dot_numba(self.V, gp.w, len(self.C))
-        chosen, self.top_score = _select_batch_numba(batch_size, gp.X, gp.L, n, math.exp(gp.log_noise), self.C, self.V,
+        chosen, _ = _select_batch_numba(batch_size, gp.X, gp.L, n, math.exp(gp.log_noise), self.C, self.V,
                                      self.squares, mean, gp.signal, inv_length, self.periodic, acquisition.kind,
                                      acquisition.best, acquisition.parameter, self.cost, acquisition.best_cost)
         gp.n = self.pool_rows = n + batch_size
@@ -335,7 +334,7 @@ def _initial_design(rng, dims, count):
 
 
 def _run(evaluate, plan, bounds, *, evaluations, initial_points, batch_size, x0, periodic, seed, candidates,
-         local_candidates, fits, unit_cost=None, stop=None, converged=None):
+         local_candidates, fits, unit_cost=None, stop=None):
     """Shared loop: ``evaluate(unit_points) -> targets``; ``plan(gp) -> (_Acquisition, incumbents)``.
 
     ``x0`` is evaluated first on its own, so ``stop()`` can end the run before the rest of the design.
@@ -362,11 +361,7 @@ def _run(evaluate, plan, bounds, *, evaluations, initial_points, batch_size, x0,
             search.hyperparameters_changed()
             next_fit, fits_left = 2 * gp.n, fits_left - 1
         acquisition, incumbents = plan(gp)
-        n_before = gp.n
         batch = search.select(acquisition, incumbents, min(batch_size, evaluations - gp.n))
-        if converged is not None and converged(acquisition, search.top_score):
-            gp.n = search.pool_rows = n_before  # drop the pending points
-            break
         targets.extend(evaluate(batch))
         gp.set_targets(np.asarray(targets))
     return low + width * gp.X[:gp.n], np.asarray(targets)
@@ -443,7 +438,7 @@ def minimize(objective, bounds, *, evaluations=100, initial_points=10, batch_siz
 
 
 def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100, initial_points=10, batch_size=4,
-                         x0=None, periodic=None, cost_lower_bound=None, tolerance=None, seed=0, candidates=256,
+                         x0=None, periodic=None, cost_lower_bound=None, patience=None, seed=0, candidates=256,
                          local_candidates=64, fits=3):
     """Minimize a cheap known cost subject to an expensive constraint ``constraint(x) <= threshold``.
 
@@ -467,9 +462,10 @@ def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100
         As in :func:`minimize`.
     cost_lower_bound : float, optional
         Known infimum of the cost over the box; the run stops early once a feasible point reaches it.
-    tolerance : float, optional
-        Stop once the largest expected feasible improvement over the candidates falls below
-        ``tolerance * best_cost`` (relative convergence); by default the whole budget is used.
+    patience : int, optional
+        Stop once ``patience`` evaluations in a row, counted from the one that found the cheapest feasible point
+        so far, found none cheaper (the feasible boundary is settled); until a feasible point is found the run
+        goes on. By default the whole budget is used.
 
     Returns
     -------
@@ -507,24 +503,31 @@ def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100
             return _Acquisition(_FEASIBILITY, t), gp.X[np.argsort(gp.y[:gp.n], kind="stable")[:3]]
         return _Acquisition(_FEASIBLE_IMPROVEMENT, t, best_cost=best_cost), gp.X[order[:3]]
 
+    if patience is not None and (int(patience) != patience or patience < 1):
+        raise ValueError(f"patience must be a positive whole number, got {patience}")
     reached = []
-
-    def converged(acquisition, top_score):
-        if tolerance is None or acquisition.kind != _FEASIBLE_IMPROVEMENT:
-            return False
-        return top_score < math.log(tolerance * acquisition.best_cost)
+    cheapest = {"cost": np.inf, "since": 0}  # the cheapest feasible cost and the evaluations after it
 
     def evaluate_and_check(unit_points):
         values = evaluate(unit_points)
+        new_costs = np.asarray(costs[-len(values):])
+        for value, cost_value in zip(values, new_costs):
+            if value <= threshold and cost_value < cheapest["cost"]:
+                cheapest["cost"], cheapest["since"] = cost_value, 0
+            else:
+                cheapest["since"] += 1
         if cost_lower_bound is not None:
             tolerance = 1e-12 * max(1.0, abs(cost_lower_bound))
-            reached.extend(np.asarray(costs[-len(values):])[values <= threshold] <= cost_lower_bound + tolerance)
+            reached.extend(new_costs[values <= threshold] <= cost_lower_bound + tolerance)
         return values
+
+    def stop():
+        settled = (patience is not None and np.isfinite(cheapest["cost"]) and cheapest["since"] >= patience)
+        return settled or any(reached)
 
     X, y = _run(evaluate_and_check, plan, bounds, evaluations=evaluations, initial_points=initial_points,
                 batch_size=batch_size, x0=x0, periodic=periodic, seed=seed, candidates=candidates,
-                local_candidates=local_candidates, fits=fits, unit_cost=unit_cost, stop=lambda: any(reached),
-                converged=converged)
+                local_candidates=local_candidates, fits=fits, unit_cost=unit_cost, stop=stop)
     costs = np.asarray(costs)
     feasible = y <= threshold
     if feasible.any():

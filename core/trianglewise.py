@@ -39,9 +39,9 @@ Decisions (the paper leaves them open):
   The last ``POLISH_EVALUATIONS = 12`` evaluations of the constrained form bisect ``lambda1`` and ``lambda2``
   one at a time from the best feasible point (:func:`_polish`): aligned high-frequency textures have thin
   feasible sets (stripes: ``alpha ~ 0``, ``beta ~ 0``, ``lambda1 ~ 1``, any ``lambda2``) that a stationary GP
-  finds but rarely walks along. A relative convergence tolerance (stop when the best expected improvement is
-  below ``tolerance * area``) exists but is off: on 30 spot triangles it saved 30 % of the evaluations and
-  cost 8-15 % of area.
+  finds but rarely walks along. The Bayesian optimization hands over to the bisection early once
+  ``PATIENCE = 24`` evaluations in a row (six rounds of four) found no feasible point of smaller area than the
+  best one: the feasible boundary is settled, and later rounds rarely find a smaller area.
   Both formulations return the best evaluated point that satisfies ``E <= epsilon`` by the exact criterion
   (area, or Eq. 14 with the true barrier); the identity is always evaluated first, so one exists whenever
   the input itself is within the bound (``E(identity) ~ 1e-12``).
@@ -105,7 +105,7 @@ CHECKPOINT_SECONDS = 30.0
 ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
-TOLERANCE = None
+PATIENCE = 24
 _QUARTER = 0.5 * math.pi
 _FORMULATIONS = ("constrained", "barrier")
 _BACKENDS = ("fast", "skopt")
@@ -271,7 +271,7 @@ def _polish(loss, best, epsilon, lambda_min, evaluations):
 
 
 def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMBDA_MIN, formulation=None,
-                      backend="fast", seed=0, weights=True, polish_evaluations=None, tolerance=TOLERANCE):
+                      backend="fast", seed=0, weights=True, polish_evaluations=None, patience=PATIENCE):
     """Optimal deformation of one triangle (Eq. 7 / 12-14) and its sensitivity weights (Eq. 17).
 
     Parameters
@@ -283,12 +283,15 @@ def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMB
         Loss bound (the paper: 0.01).
     evaluations : int, optional
         Loss evaluations of the optimization (the paper: 100); the weights add
-        ``ROTATION_SAMPLES + STRETCH_SAMPLES``. The constrained form may stop earlier (optimal corner).
+        ``ROTATION_SAMPLES + STRETCH_SAMPLES``. The constrained form may stop earlier (optimal corner, or
+        ``patience``).
     polish_evaluations : int, optional
         Evaluations of the constrained form kept for the lambda bisection (default
         ``min(POLISH_EVALUATIONS, evaluations // 5)``).
-    tolerance : float, optional
-        Relative convergence tolerance of the constrained form (off by default, see the module notes).
+    patience : int or None, optional
+        The constrained form's Bayesian optimization hands over to the bisection once this many evaluations
+        in a row found no feasible point of smaller area (default :data:`PATIENCE`; None spends the whole
+        budget).
     lambda_min : float, optional
         Lower bound of ``lambda1, lambda2``.
     formulation : {"constrained", "barrier"}, optional
@@ -330,7 +333,7 @@ def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMB
         found = bayesopt.minimize_constrained(
             lambda P: P[:, 1] * P[:, 2], lambda P: np.log(loss(P) + offset), bounds,
             threshold=math.log(epsilon + offset), evaluations=evaluations - polish, x0=np.vstack([identity, corner]),
-            periodic=periodic, cost_lower_bound=lambda_min * lambda_min, tolerance=tolerance, seed=seed)
+            periodic=periodic, cost_lower_bound=lambda_min * lambda_min, patience=patience, seed=seed)
         if found.feasible and found.fun > lambda_min * lambda_min * (1 + 1e-9):
             _polish(loss, found.x, epsilon, lambda_min, polish)
     else:

@@ -262,6 +262,49 @@ def test_minimize_constrained_stops_at_known_lower_bound():
     assert result.fun == pytest.approx(0.01)
 
 
+def test_minimize_constrained_patience_counts_evaluations_without_a_cheaper_feasible_point():
+    # Feasible only at x0 = (1, 1) (threshold 0 on a squared distance): x0 is evaluated alone, then the 9 points
+    # of the Latin hypercube (initial_points = 10) find nothing: 9 evaluations without a cheaper feasible point.
+    # With patience 8 the run stops after the design (1 + 9); with patience 12 after one round of 4 more.
+    def run(patience):
+        return minimize_constrained(lambda P: P[:, 0] * P[:, 1], lambda P: (1 - P[:, 0]) ** 2 + (1 - P[:, 1]) ** 2,
+                                    [[0.1, 1], [0.1, 1]], threshold=0.0, x0=[[1, 1]], evaluations=50,
+                                    patience=patience, seed=0)
+
+    assert run(8).evaluations == 10
+    assert run(12).evaluations == 14
+    assert run(None).evaluations == 50
+    assert run(12).fun == 1.0
+
+
+def test_minimize_constrained_patience_stops_a_run_that_settled():
+    # The circle problem of test_minimize_constrained_by_hand: the run with patience is the first part of the
+    # run without, and it stops at the first round after which `patience` evaluations followed the cheapest
+    # feasible point (checked between rounds of batch_size = 4).
+    def run(patience):
+        return minimize_constrained(lambda P: P[:, 0] * P[:, 1],
+                                    lambda P: (1 - P[:, 0]) ** 2 + (1 - P[:, 1]) ** 2, [[0.1, 1], [0.1, 1]],
+                                    threshold=0.5, x0=[[1, 1]], evaluations=100, patience=patience, seed=0)
+
+    full, short = run(None), run(8)
+    n = short.evaluations
+    assert n < full.evaluations
+    np.testing.assert_array_equal(short.X, full.X[:n])
+    costs = full.X[:, 0] * full.X[:, 1]
+    feasible = full.y <= 0.5
+    cheapest = [int(np.argmin(np.where(feasible[:k], costs[:k], np.inf))) for k in range(1, n + 1)]
+    since = [k - 1 - cheapest[k - 1] for k in range(1, n + 1)]
+    assert since[-1] >= 8
+    assert all(s < 8 for s in since[n - 5:n - 4])  # not settled at the previous round's end
+    assert short.fun == costs[cheapest[-1]]
+
+
+def test_minimize_constrained_patience_waits_for_a_feasible_point():
+    result = minimize_constrained(lambda P: P[:, 0], lambda P: 1 + P[:, 0] ** 2, [[0, 1]], threshold=0.5,
+                                  evaluations=15, patience=3, seed=0)
+    assert result.evaluations == 15 and not result.feasible
+
+
 def test_minimize_constrained_reports_infeasible():
     result = minimize_constrained(lambda P: P[:, 0], lambda P: 1 + P[:, 0] ** 2, [[0, 1]], threshold=0.5,
                                   evaluations=15, seed=0)
@@ -280,6 +323,8 @@ def test_validation_errors():
         minimize(lambda P: np.full(len(P), np.inf), [[0, 1]], evaluations=5)
     with pytest.raises(ValueError, match="periodic"):
         minimize(_branin, [[0, 1], [0, 1]], periodic=[True])
+    with pytest.raises(ValueError, match="patience"):
+        minimize_constrained(lambda P: P[:, 0], lambda P: P[:, 0], [[0, 1]], threshold=0.5, patience=0)
 
 
 def test_skopt_backend_same_budget_and_start():

@@ -113,6 +113,23 @@ def test_constant_texture_optimizer_reaches_box_minimum():
     assert found.evaluations == 2 + tw.ROTATION_SAMPLES + tw.STRETCH_SAMPLES
 
 
+def test_the_search_hands_over_to_the_bisection_once_the_feasible_boundary_is_settled():
+    # Feasible only at the identity (E = 1 elsewhere). The identity and the corner come first (2 evaluations),
+    # then 8 Latin-hypercube points: 9 evaluations after the identity without a smaller feasible area. Rounds of 4
+    # take that to 13, 17, 21, 25 >= PATIENCE = 24: the search stops after 2 + 8 + 16 = 26. The bisection from
+    # the identity then fails 6 times on each eigenvalue (12 evaluations, its whole share), and the weights add 24.
+    def loss(P):
+        return np.where(np.all(P == [0.0, 1.0, 1.0, 0.0], axis=1), 0.0, 1.0)
+
+    assert tw.PATIENCE == 24
+    settled = tw.optimize_triangle(AnalyticProblem(loss))
+    whole = tw.optimize_triangle(AnalyticProblem(loss), patience=None)
+    assert settled.evaluations == 26 + 12 + tw.ROTATION_SAMPLES + tw.STRETCH_SAMPLES
+    assert whole.evaluations == 100 + tw.ROTATION_SAMPLES + tw.STRETCH_SAMPLES
+    np.testing.assert_array_equal(settled.params, [0.0, 1.0, 1.0, 0.0])
+    np.testing.assert_array_equal(whole.params, [0.0, 1.0, 1.0, 0.0])
+
+
 def test_vertical_stripes_keep_resolution_across_and_shrink_along():
     # Columns alternate 0/1 (the texel frequency), constant along v. By hand: the new texels must keep the
     # x spacing and stay aligned with the stripes, or the 1-texel period aliases (a 5-degree turn already
