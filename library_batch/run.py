@@ -435,7 +435,25 @@ def _stop(client, pending, run_id):
         client.cancel(list(pending))
 
 
+def _quiet_cluster_logs():
+    """Let Dask's ``distributed`` log nothing below CRITICAL in this process (a worker, a nanny or the batch)."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+
+
 def _close(client, cluster):
+    """Close the client and, when the batch made it, the cluster; returns None.
+
+    Closing our own cluster first quiets its processes' ``distributed`` logs: a worker's heartbeat that meets the
+    scheduler already closed logs its failure with a traceback at ERROR level, above the cluster's
+    ``silence_logs``, and its stderr is the batch's. A cluster the batch only connected to (``--scheduler``) is
+    left as it is.
+    """
+    if client is not None and cluster is not None:
+        with contextlib.suppress(Exception):
+            client.run(_quiet_cluster_logs)
+        with contextlib.suppress(Exception):
+            client.run(_quiet_cluster_logs, nanny=True)
+        _quiet_cluster_logs()  # the scheduler of a LocalCluster runs in this process
     for thing in (client, cluster):
         if thing is not None:
             with contextlib.suppress(Exception):

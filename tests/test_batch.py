@@ -336,3 +336,39 @@ def test_progress_prints_counts_and_eta_at_most_every_5_s_without_tqdm(monkeypat
     progress.last -= run.PROGRESS_EVERY_S
     progress.update(finished=2, done=1, bad=1, failed=0, running=2, retrying=1)
     assert "2/4 finished (1 done, 1 bad input, 0 failed, 2 running, 0 waiting, 1 retried)" in capsys.readouterr().err
+
+
+def test_closing_its_own_cluster_quiets_the_cluster_logs_first_and_leaves_a_remote_one_alone():
+    """A worker heartbeat that meets the closed scheduler logs a traceback at ERROR level into the batch's stderr
+    (a Ctrl-C once printed one): the batch quiets ``distributed`` on its own cluster's workers and nannies before
+    closing; on a cluster it only connected to, it changes nothing."""
+    import logging
+
+    from perceptual_uv.library_batch import run
+
+    calls = []
+
+    class Fake:
+        def __init__(self, name):
+            self.name = name
+
+        def run(self, function, **options):
+            calls.append((self.name, "run", function, options))
+
+        def close(self):
+            calls.append((self.name, "close"))
+
+    logger = logging.getLogger("distributed")
+    level = logger.level
+    try:
+        assert run._close(Fake("client"), None) is None
+        assert calls == [("client", "close")]
+        assert logger.level == level
+        calls.clear()
+        run._close(Fake("client"), Fake("cluster"))
+        assert calls == [("client", "run", run._quiet_cluster_logs, {}),
+                         ("client", "run", run._quiet_cluster_logs, {"nanny": True}),
+                         ("client", "close"), ("cluster", "close")]
+        assert logger.level == logging.CRITICAL
+    finally:
+        logger.setLevel(level)
