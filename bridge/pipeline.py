@@ -29,6 +29,7 @@ from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_sid
 __all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "run_to_end", "target_problem",
            "map_resolution", "COPY_PROPERTY"]
 
+
 @dataclasses.dataclass(frozen=True)
 class Progress:
     """One step of a run: ``stage`` name, ``done`` of ``total`` units of it, and a line for the status bar.

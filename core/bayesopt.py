@@ -157,18 +157,14 @@ def _select_batch_numba(q, X, L, n, noise, C, V, squares, mean, signal, inv_leng
 
     After a pick ``j``, its column ``V[:n, j]`` is the new row of ``L`` (it is ``L^-1 k(X, c_j)``), the
     diagonal is ``sqrt(1 + noise - squares[j])``, and one new row of ``V`` lowers every candidate's variance;
-    the mean does not change (the fantasy target is the posterior mean). Returns the chosen indices and the
-    best score of the first pick (the acquisition's maximum over the candidates).
+    the mean does not change (the fantasy target is the posterior mean). Returns the chosen indices.
     """
     c = C.shape[0]
     taken = np.zeros(c, np.bool_)
     chosen = np.empty(q, np.int64)
-    top = -np.inf
     for pick in range(q):
         scores = _scores_numba(mean, squares, signal, kind, best, parameter, cost, best_cost, taken)
         j = int(np.argmax(scores))
-        if pick == 0:
-            top = scores[j]
         chosen[pick] = j
         taken[j] = True
         for i in range(n):
@@ -177,7 +173,7 @@ def _select_batch_numba(q, X, L, n, noise, C, V, squares, mean, signal, inv_leng
         X[n] = C[j]
         _append_rows_numba(V, squares, L, X, n, n + 1, C, 0, c, inv_length, periodic)
         n += 1
-    return chosen, top
+    return chosen
 
 
 def _select_batch_numpy(q, X, L, n, noise, C, V, squares, mean, signal, inv_length, periodic, kind, best,
@@ -320,7 +316,7 @@ class _Search:
             _append_rows_numba(self.V, self.squares, gp.L, gp.X, 0, n, self.C, P, len(self.C), inv_length,
                                self.periodic)
         mean = _leading_dot_numba(self.V, gp.w, len(self.C))
-        chosen, _ = _select_batch_numba(batch_size, gp.X, gp.L, n, math.exp(gp.log_noise), self.C, self.V,
+        chosen = _select_batch_numba(batch_size, gp.X, gp.L, n, math.exp(gp.log_noise), self.C, self.V,
                                      self.squares, mean, gp.signal, inv_length, self.periodic, acquisition.kind,
                                      acquisition.best, acquisition.parameter, self.cost, acquisition.best_cost)
         gp.n = self.pool_rows = n + batch_size

@@ -127,7 +127,7 @@ def test_select_batch_incremental_matches_dense_reference(kind):
     args = (mean, 0.8, inv_length, periodic, kind, 0.1, 0.01, cost, 0.7)
     reference = bayesopt._select_batch_numpy(q, Xc.copy(), L.copy(), len(X), noise, C, V.copy(), squares.copy(),
                                              *args)
-    chosen, _ = bayesopt._select_batch_numba(q, Xc, L, len(X), noise, C, V, squares, *args)
+    chosen = bayesopt._select_batch_numba(q, Xc, L, len(X), noise, C, V, squares, *args)
     np.testing.assert_array_equal(chosen, reference)
     assert len(set(chosen.tolist())) == q
     # the appended factor is the factor of the extended kernel matrix
