@@ -57,11 +57,9 @@ class MeshwiseStageResult:
 def meshwise_results():
     """Mesh-wise results of recent runs by :func:`meshwise_key`, in memory and in the ``meshwise`` folder of
     ``core.result_cache.default_cache_folder()``. Made on first use, so importing this module stays light."""
-    if not _MESHWISE_RESULTS:
-        from ..core.result_cache import ResultCache, default_cache_folder
+    from ..core.result_cache import stage_results
 
-        _MESHWISE_RESULTS.append(ResultCache(MeshwiseStageResult, folder=default_cache_folder() / "meshwise"))
-    return _MESHWISE_RESULTS[0]
+    return stage_results(_MESHWISE_RESULTS, MeshwiseStageResult, "meshwise")
 
 
 def meshwise_key(triangle_key, texture, *, keep_stacks):
@@ -87,9 +85,10 @@ def meshwise_key(triangle_key, texture, *, keep_stacks):
     return result_key(texture, triangle_key=triangle_key, keep_stacks=bool(keep_stacks), stage_code=stage_code)
 
 
-def iter_meshwise_stage(validated, planes, triangles, topology, stacks, settings, step, started):
-    """Generator: the mesh-wise stage of a run, yielding ``step("mesh", ...)``; returns a
-    :class:`MeshwiseStageResult`.
+def iter_meshwise_stage(validated, planes, triangles, topology, stacks, key, settings, run, step, started):
+    """Generator: the mesh-wise result for ``key``, from :func:`meshwise_results` or fitted, yielding
+    ``step("mesh", ...)``; returns ``(meshwise, notes)``, a :class:`MeshwiseStageResult` and the notes for the
+    report on what was reused.
 
     Parameters
     ----------
@@ -102,13 +101,32 @@ def iter_meshwise_stage(validated, planes, triangles, topology, stacks, settings
         Of the optimized faces ``validated.faces``.
     topology : core.charts.UVTopology
         The input's charts; ``stacks`` (or None) the stacks among them that stay stacked.
+    key : str
+        The stage's result key (:func:`meshwise_key`).
     settings : core.settings.OptimizeSettings
-        The views (``screen_pixels``, ``max_screen_pixels``) and the workers of the loss pass.
+        The views (``screen_pixels``, ``max_screen_pixels``), the workers of the loss pass and whether earlier
+        results are reused (``reuse_triangle_results``).
+    run : core.progress.RunProgress
+        Told when an earlier run's result is taken, so that the run's ETA leaves the stage out.
     step : callable
         ``step(stage, done, total, message)`` of the pipeline.
     started : float
         ``time.perf_counter()`` at the stage's start, for the time left of the fit.
     """
+    meshwise = meshwise_results().get(key) if settings.reuse_triangle_results else None
+    if meshwise is not None:
+        run.skip("mesh", 1, 1)
+        yield step("mesh", 1, 1, "Mesh-wise fit: reused from an earlier run")
+        return meshwise, ["the mesh-wise fit of an earlier run on the same input and settings was reused (the cost, "
+                          "margin, names and sizes change only the packing and the bake)"]
+    yield step("mesh", 0, 1, "Starting the mesh-wise fit")  # the islands found: a step apart
+    meshwise = yield from _iter_fit(validated, planes, triangles, topology, stacks, settings, step, started)
+    meshwise_results().put(key, meshwise)
+    return meshwise, []
+
+
+def _iter_fit(validated, planes, triangles, topology, stacks, settings, step, started):
+    """The mesh-wise stage's work (:func:`iter_meshwise_stage`'s arguments); returns a :class:`MeshwiseStageResult`."""
     from ..core.chartfit import iter_fit_charts
     from ..core.loss_passes import iter_fit_losses
     from ..core.ssp import iter_ssp_targets

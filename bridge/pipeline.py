@@ -326,7 +326,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         from ..core.stacks import packing_islands, stacked_charts, stacked_faces
         from ..core.textured import above_bound
         from .bake import iter_bake_maps
-        from .meshwise_stage import iter_meshwise_stage, meshwise_key, meshwise_results
+        from .meshwise_stage import iter_meshwise_stage, meshwise_key
         from .trianglewise_stage import iter_trianglewise_stage
 
         started = time.perf_counter()  # the run's times leave out loading the modules
@@ -375,17 +375,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         stacks = None
         if settings.keep_stacks:  # in a thread: about 0.2 s on sofa_03's 166 islands
             stacks = yield from report_while_waiting(InThread(stacked_charts, uv_in, input_charts).wait(), finding)
-        meshwise = meshwise_results().get(mesh_key) if settings.reuse_triangle_results else None
-        if meshwise is None:
-            yield step("mesh", 0, 1, "Starting the mesh-wise fit")  # the islands found: a step apart
-            meshwise = yield from iter_meshwise_stage(validated, planes, triangles, topology, stacks, settings, step,
-                                                      clock)
-            meshwise_results().put(mesh_key, meshwise)
-        else:
-            notes.append("the mesh-wise fit of an earlier run on the same input and settings was reused (the cost, "
-                         "margin, names and sizes change only the packing and the bake)")
-            run.skip("mesh", 1, 1)
-            yield step("mesh", 1, 1, "Mesh-wise fit: reused from an earlier run")
+        meshwise, meshwise_notes = yield from iter_meshwise_stage(validated, planes, triangles, topology, stacks,
+                                                                  mesh_key, settings, run, step, clock)
+        notes += meshwise_notes
         uv_fit, restored, losses, textured = meshwise.uv, meshwise.restored, meshwise.losses, meshwise.textured
         if restored.size:
             notes.append(f"{restored.size} UV island(s) folded over themselves in the mesh-wise fit (it is locally "

@@ -20,12 +20,10 @@ def triangle_results():
     """Triangle-wise results of recent runs, keyed by the stage's inputs, settings and code (in memory and in
     ``core.result_cache.default_cache_folder()``): a rerun that changes only the cost, margin or names (the redo
     panel, a second CLI run) skips the stage. Made on first use, so importing this module stays light."""
-    if not _TRIANGLE_RESULTS:
-        from ..core.result_cache import ResultCache, default_cache_folder
-        from ..core.trianglewise_result import TrianglewiseResult
+    from ..core.result_cache import stage_results
+    from ..core.trianglewise_result import TrianglewiseResult
 
-        _TRIANGLE_RESULTS.append(ResultCache(TrianglewiseResult, folder=default_cache_folder()))
-    return _TRIANGLE_RESULTS[0]
+    return stage_results(_TRIANGLE_RESULTS, TrianglewiseResult)
 
 
 def iter_trianglewise_stage(V, F, uv_in, planes, faces, key, settings, run, step, clock):

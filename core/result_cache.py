@@ -18,7 +18,7 @@ import numpy as np
 from ._jit import cache_dir, core_source_hash
 from .atomic import atomic_path
 
-__all__ = ["ResultCache", "result_key", "default_cache_folder", "save_arrays", "dataclass_from"]
+__all__ = ["ResultCache", "stage_results", "result_key", "default_cache_folder", "save_arrays", "dataclass_from"]
 
 
 def save_arrays(path, **arrays):
@@ -43,6 +43,29 @@ def default_cache_folder():
     numba's cache (:func:`perceptual_uv.core._jit.cache_dir`)."""
     override = os.environ.get("PERCEPTUAL_UV_RESULTS_CACHE")
     return pathlib.Path(override) if override else pathlib.Path(cache_dir()).parent / "results"
+
+
+def stage_results(holder, kind, subfolder=None):
+    """The :class:`ResultCache` of one pipeline stage, made on first use and kept in ``holder``.
+
+    Parameters
+    ----------
+    holder : list
+        The stage module's list that keeps the cache once made (empty until then; tests empty it to start
+        afresh).
+    kind : type
+        The stage's result dataclass.
+    subfolder : str, optional
+        The stage's folder under :func:`default_cache_folder` (None: that folder itself).
+
+    Returns
+    -------
+    ResultCache
+    """
+    if not holder:
+        folder = default_cache_folder()
+        holder.append(ResultCache(kind, folder=folder / subfolder if subfolder else folder))
+    return holder[0]
 
 
 def result_key(*arrays, **settings):
