@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from perceptual_uv.core import result_cache
-from perceptual_uv.core.result_cache import ResultCache, default_cache_folder, result_key
+from perceptual_uv.core.result_cache import ResultCache, default_cache_folder, result_key, stage_results
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,6 +35,15 @@ def test_key_changes_with_every_input_setting_and_the_code(monkeypatch):
     assert result_key(V, np.arange(3), epsilon=0.01, seed=1) != base
     monkeypatch.setattr(result_cache, "core_source_hash", lambda: "another version of core")
     assert result_key(V, np.arange(3), epsilon=0.01, seed=0) != base
+
+
+def test_a_stage_cache_is_made_once_in_its_holder_under_the_cache_folder(tmp_path, monkeypatch):
+    monkeypatch.setenv("PERCEPTUAL_UV_RESULTS_CACHE", str(tmp_path))
+    holder = []
+    made = stage_results(holder, Result, "meshwise")
+    assert holder == [made] and made.kind is Result and made.folder == tmp_path / "meshwise"
+    assert stage_results(holder, Result, "meshwise") is made  # kept, not made again
+    assert stage_results([], Result).folder == tmp_path
 
 
 def test_a_result_comes_back_from_memory_and_from_disk(tmp_path):
