@@ -19,15 +19,15 @@ import numpy as np
 
 from ..core import cost as texel_cost
 from ..core.progress import InThread, RunProgress, format_seconds, relay_stage, report_while_waiting
-from .image_file import image_channels, image_size, iter_read_image, iter_save_or_pack
+from .image_file import image_size, iter_save_or_pack
 from .loss_overlay import write_loss_attributes
-from .material import base_color_image_node
 from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_side, image_stem, iter_loss_planes_of,
                             map_report, map_resolution, material_copies, memory_resolution, read_maps,
                             resolve_source_uv)
+from .read_objects import READ_STEPS, iter_import_stages, iter_read_objects, one_object_per_mesh, target_problem
 
-__all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "run_to_end", "target_problem",
-           "map_resolution", "COPY_PROPERTY"]
+__all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "run_to_end", "map_resolution",
+           "COPY_PROPERTY"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,65 +67,6 @@ class PipelineResult:
     images: list = dataclasses.field(default_factory=list)  # every new image, the base colour's first
 
 
-def target_problem(obj):
-    """Why ``obj`` cannot be optimized (a sentence for the user), or None when it can."""
-    if obj is None or obj.type != "MESH":
-        return "Select a mesh object"
-    if obj.data.library is not None or obj.library is not None:
-        block = obj.data if obj.data.library is not None else obj
-        return (f"'{block.name}' is linked from the library '{block.library.filepath}' and cannot be changed: make it "
-                "local first (Object > Relations > Make Local)")
-    if not obj.data.uv_layers:
-        return f"Mesh '{obj.data.name}' has no UV map: unwrap it first"
-    if not any(base_color_image_node(slot.material) for slot in obj.material_slots):
-        return f"Object '{obj.name}' has no image texture feeding a material's Base Color"
-    return None
-
-
-def _source_image(objects):
-    """The one base-colour image of ``objects``, or a ValueError that says which images were found where."""
-    per_object = {}
-    for obj in objects:
-        for index, slot in enumerate(obj.material_slots):
-            if (node := base_color_image_node(slot.material)) is not None:
-                per_object.setdefault(obj.name, {}).setdefault(node.image, []).append(index)
-    images = {image for slots in per_object.values() for image in slots}
-    for name, slots in per_object.items():
-        if len(slots) > 1:
-            listing = "; ".join(f"'{image.name}' on slot{'s' if len(indices) > 1 else ''} "
-                                f"{', '.join(str(i + 1) for i in indices)}"
-                                for image, indices in sorted(slots.items(), key=lambda item: item[0].name))
-            raise ValueError(f"object '{name}' uses {len(slots)} different images for its base colour ({listing}); "
-                             "one run optimizes one texture: separate the object by material (Edit Mode, Mesh > "
-                             "Separate > By Material) and optimize the part with the texture you want")
-    if len(images) != 1:
-        names = ", ".join(sorted(image.name for image in images))
-        raise ValueError(f"the objects' base colours use {len(images)} images ({names}); optimize objects that "
-                         "share one texture together, or each material's objects separately")
-    (image,) = images
-    if image.source == "TILED":
-        raise ValueError(f"image '{image.name}' is a UDIM tiled image; only single images are supported (bake the "
-                         "tiles into one image first)")
-    if image.source in {"SEQUENCE", "MOVIE"}:
-        raise ValueError(f"image '{image.name}' is an image sequence or movie; use a single still image")
-    if 0 in image_size(image):
-        where = bpy.path.abspath(image.filepath) if image.filepath else "(no file path)"
-        raise ValueError(f"image '{image.name}' has no pixels: its file {where} is missing or unreadable; "
-                         "fix the path (Image > Replace) or pack the image")
-    return image
-
-
-def _notes_for_objects(objects):
-    """What the user should know about the objects themselves (modifiers: the base mesh is optimized)."""
-    notes = []
-    for obj in objects:
-        if obj.modifiers:
-            names = ", ".join(f"{modifier.name} ({modifier.type.lower()})" for modifier in obj.modifiers)
-            notes.append(f"object '{obj.name}' has modifiers ({names}): its base mesh is optimized, the modifiers "
-                         "still apply on top of the new UV map")
-    return notes
-
-
 def _unique_uv_name(objects, wanted):
     name, counter = wanted, 1
     while any(name in obj.data.uv_layers for obj in objects):
@@ -137,19 +78,6 @@ MAX_UV_MAPS = 8  # Blender's limit per mesh
 LOW_COVERAGE = 0.25  # below it the image holds more than 4 times the texels the cost counts
 SHARED_TEXELS = 1.1  # above it the input's islands share a tenth of their texels or more (tiled, laid on each other)
 
-
-def _one_object_per_mesh(objects):
-    """Objects that share mesh data (linked duplicates) are optimized once, through the first of them."""
-    kept, notes, first = [], [], {}
-    for obj in objects:
-        if obj.data in first:
-            notes.append(f"object '{obj.name}' shares mesh '{obj.data.name}' with '{first[obj.data].name}': the mesh "
-                         f"is optimized once and gets one new UV map; only '{first[obj.data].name}' gets the "
-                         "material copy")
-            continue
-        first[obj.data] = obj
-        kept.append(obj)
-    return kept, notes
 
 
 class _Created:
@@ -188,67 +116,6 @@ class _Created:
                 os.unlink(path)
 
 
-# The parts of the "read" stage, each one step of the pipeline generator.
-_READ_STEPS = 6
-# The stages' modules (relative to this package): their first import in a session loads scipy and numba (about a
-# second).
-_STAGE_MODULES = ("..core.chartfit", "..core.loss", "..core.loss_passes", "..core.result_cache", "..core.ssp",
-                  "..core.trianglewise", ".bake")
-
-
-def _iter_import_stages(step):
-    """Import :data:`_STAGE_MODULES` and load the kernels a run executes here (:func:`..core.warm_up.load_kernels`,
-    which compiles them after an install or update) in a thread, yielding ``step("read", 0, ...)`` every 0.1 s
-    until it is done (nothing when they are imported already). A module whose import fails is left to the
-    pipeline's own import, which raises the error. (Importing ``.bake`` runs no bpy call: its module code only
-    defines.)"""
-    import importlib
-    import importlib.util
-    import sys
-
-    names = [importlib.util.resolve_name(name, __package__) for name in _STAGE_MODULES]
-    if all(name in sys.modules for name in names):
-        return
-
-    def load():
-        for name in names:
-            with contextlib.suppress(Exception):
-                importlib.import_module(name)
-        with contextlib.suppress(Exception):
-            importlib.import_module("..core.warm_up", __package__).load_kernels()
-
-    for _ in InThread(load).wait():
-        yield step("read", 0, _READ_STEPS, "Loading the optimizer")
-
-
-def _iter_read_objects(objects, source_uv, settings, step):
-    """Read, then validate, one part per step: yields ``step("read", ...)`` before each part and returns the
-    image block, the validated input (mesh, texture for the loss, what to skip) and notes.
-
-    An 8-bit PNG or JPEG is sized from its file's header and decoded in a thread (:mod:`.image_file`): Blender
-    does not load it here. Any other image's load is a single bpy call, one step however large the image is.
-    """
-    from ..core.mesh import concatenate_meshes
-    from ..core.validate import check_memory_budget, validate_inputs
-    from .mesh_io import image_triangle_mask, read_mesh
-
-    per_object = [read_mesh(obj, uv_name=source_uv) for obj in objects]
-    mesh = concatenate_meshes(per_object)
-    yield step("read", 1, _READ_STEPS, "Loading the texture")
-    image = _source_image(objects)
-    width, height = image_size(image)
-    what = ", ".join(f"'{obj.name}'" for obj in objects)
-    # Refused before the pixels are read when the run would not fit.
-    check_memory_budget(mesh.n_vertices, mesh.n_faces, (height, width, image_channels(image)), workers=settings.workers,
-                        screen_pixels=settings.max_screen_pixels, what=what)
-    uses_image = np.concatenate([image_triangle_mask(obj, arrays, image) for obj, arrays in zip(objects, per_object)])
-    reading = step("read", 2, _READ_STEPS, "Reading the texture's pixels")
-    yield reading
-    pixels = yield from report_while_waiting(iter_read_image(image), reading)
-    yield step("read", 3, _READ_STEPS, "Checking the mesh and texture")
-    validated = validate_inputs(mesh, pixels, shows_texture=uses_image, workers=settings.workers,
-                                screen_pixels=settings.max_screen_pixels, uv_name=source_uv, image_name=image.name)
-    return image, validated, _notes_for_objects(objects) + list(validated.notes)
 
 
 def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
@@ -301,7 +168,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         problem = target_problem(obj)
         if problem:
             raise ValueError(problem)
-    objects, shared_notes = _one_object_per_mesh(objects)
+    objects, shared_notes = one_object_per_mesh(objects)
     source_uv = resolve_source_uv(objects, source_uv)
     for obj in objects:
         if source_uv not in obj.data.uv_layers:
@@ -320,7 +187,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         return Progress(stage, done, total, message, fraction, seconds_left)
 
     try:
-        yield from _iter_import_stages(step)
+        yield from iter_import_stages(step)
         from ..core.charts import uv_topology
         from ..core.result_cache import result_key
         from ..core.stacks import packing_islands, stacked_charts, stacked_faces
@@ -330,9 +197,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         from .trianglewise_stage import iter_trianglewise_stage
 
         started = time.perf_counter()  # the run's times leave out loading the modules
-        yield step("read", 0, _READ_STEPS, "Reading the mesh")
-        image, validated, notes = yield from _iter_read_objects(objects, source_uv, settings, step)
-        yield step("read", 4, _READ_STEPS, "Reading the material's maps")
+        yield step("read", 0, READ_STEPS, "Reading the mesh")
+        image, validated, notes = yield from iter_read_objects(objects, source_uv, settings, step)
+        yield step("read", 4, READ_STEPS, "Reading the material's maps")
         records, map_notes = read_maps(objects, source_uv, image)  # refused here, before the run
         notes += map_notes
         mesh, texture, faces = validated.mesh, validated.texture, validated.faces
@@ -345,7 +212,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         reuse = texel_cost.texel_reuse(uv_in, (height, width))
         per_object = [mesh.object_index == index for index in range(len(objects))]
 
-        yield step("read", 5, _READ_STEPS, "Looking for the results of an earlier run")
+        yield step("read", 5, READ_STEPS, "Looking for the results of an earlier run")
         clock = time.perf_counter()
 
         def keys():  # hashing the maps takes a few tenths of a second at 2048 px; hashlib lets other threads run
@@ -356,7 +223,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
 
         hashing = InThread(keys)
         for _ in hashing.wait():
-            yield step("read", 5, _READ_STEPS, "Looking for the results of an earlier run")
+            yield step("read", 5, READ_STEPS, "Looking for the results of an earlier run")
         key, mesh_key = hashing.join()
         triangles, triangle_notes = yield from iter_trianglewise_stage(V, F, uv_in, planes, faces, key, settings, run,
                                                                        step, clock)

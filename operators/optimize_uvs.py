@@ -36,7 +36,7 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        from ..bridge.pipeline import target_problem
+        from ..bridge.read_objects import target_problem
 
         if context.mode not in {"OBJECT", "EDIT_MESH"}:
             cls.poll_message_set("Switch to Object or Edit Mode")

@@ -8,7 +8,8 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from perceptual_uv.bridge import pipeline  # noqa: E402
-from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end, target_problem  # noqa: E402
+from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end  # noqa: E402
+from perceptual_uv.bridge.read_objects import target_problem  # noqa: E402
 from perceptual_uv.core.settings import OptimizeSettings  # noqa: E402
 
 from conftest import reset_blender_scene  # noqa: E402  (tests/ is on sys.path under pytest)
