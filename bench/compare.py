@@ -666,7 +666,8 @@ def _model_markdown(table, results, costs):
     lines = [f"## {table['model']}", "",
              f"#V {table['vertices']} / #F {table['faces']}, input r {table['input_resolution']}, c_input "
              f"{table['input_cost']:.0f}, epsilon {table['epsilon']}, {table['evaluations']} evaluations per "
-             f"triangle{_seed_text(table)}, t_triangle {_fmt_time(table['t_triangle'])} / t_mesh {_fmt_time(table['t_mesh'])}, "
+             f"triangle{_seed_text(table)}, t_triangle {_fmt_time(table['t_triangle'])} / t_mesh "
+             f"{_fmt_time(table['t_mesh'])}, "
              f"q at {table['screen_pixels']} px (20 views)", "",
              "| method | " + " | ".join(f"q @ c_r={c}" for c in costs) + " | E_iso / area (Eq. 24; 1 = isometric) |",
              "|---" * (len(costs) + 2) + "|"]
@@ -863,8 +864,8 @@ def main(argv=None):
     parser.add_argument("--no-cache", action="store_true", help="measure every method again and keep nothing")
     parser.add_argument("--triangles", type=pathlib.Path, help="folder that keeps the triangle-wise results")
     parser.add_argument("--seed", type=int, default=0,
-                        help="seed of the triangle-wise stage (ours and its variants, paper); a few seeds show how much "
-                             "q_r moves with the optimizer's random choices alone")
+                        help="seed of the triangle-wise stage (ours and its variants, paper); a few seeds show how "
+                             "much q_r moves with the optimizer's random choices alone")
     parser.add_argument("--summary", type=pathlib.Path, help="only rebuild summary.md in this folder")
     parser.add_argument("--shaded", action="store_true",
                         help="evaluate the whole material under fixed lights (Cycles) with q_r per map; adds the "

@@ -5,8 +5,8 @@ Colour and data maps (base colour, emissive, metallic-roughness / ORM, occlusion
 maps, any other data) are copied value for value: an Emission shader emits the stored values of the original
 image (a Non-Color float copy) through the original UV map and Cycles bakes EMIT. A tangent-space normal map is
 expressed in its UV map's tangent frame, which the new UV map changes: :mod:`.bake_normal` bakes it as NORMAL into
-the frame of the new UV map. Both bake on :func:`.cycles_bake.bake_pass`. Which material slots read a map, and what the others
-contribute, comes from :mod:`.map_reads`.
+the frame of the new UV map. Both bake on :func:`.cycles_bake.bake_pass`. Which material slots read a map, and what
+the others contribute, comes from :mod:`.map_reads`.
 
 Everything happens on temporary copies in a temporary scene: the object, its mesh, materials, images and the
 user's scene settings are left exactly as they were; the only thing that stays is the new image.
@@ -131,8 +131,8 @@ def _bake_channel(objects, *, source_uv, target_uv, resolution, margin, channel,
         return _emission_key(*sources[object_index][slot_index])
 
     pixels, covered = bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
-                                 resolution=resolution, tiles=tiles, bake_type="EMIT",
-                                 slots=[len(slot_sources) for slot_sources in sources])
+                                resolution=resolution, tiles=tiles, bake_type="EMIT",
+                                slots=[len(slot_sources) for slot_sources in sources])
     _fill_footprints(pixels, covered, objects, source_uv=source_uv, target_uv=target_uv, channel=channel,
                      sources=sources)
     extend_margin(pixels, covered, margin)
@@ -289,8 +289,8 @@ def _bake_transformed(objects, record, sources, *, source_uv, target_uv, resolut
         return "node", material.as_pointer(), own.nodes[0].name
 
     pixels, covered = bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
-                                 resolution=resolution, tiles=tiles, bake_type="EMIT",
-                                 slots=[len(slot_records) for slot_records in per_slot])
+                                resolution=resolution, tiles=tiles, bake_type="EMIT",
+                                slots=[len(slot_records) for slot_records in per_slot])
     extend_margin(pixels, covered, margin)
     return pixels
 

@@ -130,8 +130,8 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
         return material.as_pointer() if material is not None else None
 
     pixels, covered = bake_pass(objects, material_for, material_key, source_uv=source_uv, target_uv=target_uv,
-                                 resolution=resolution, tiles=tiles, bake_type="NORMAL",
-                                 slots=[len(slot_reads) for slot_reads in reads])
+                                resolution=resolution, tiles=tiles, bake_type="NORMAL",
+                                slots=[len(slot_reads) for slot_reads in reads])
     if not has_transform(record):  # the lookups below read the source UV map without the node's transform
         folds = _fold_texels(objects, covered, target_uv=target_uv)  # before the seam texels join ``covered``
         for obj, (mesh, rows, columns, face, bary) in zip(objects, folds):
