@@ -195,6 +195,13 @@ class _NewtonSolver:
             self.factorizations += 1
         return self.solve(-grad)
 
+    def release(self):
+        """Drop the factorization. Call it in the thread that made it: scipy's SuperLU keeps the memory of a
+        factor freed in another thread than its own (scipy issue 15921; a process grew by a factor's size per
+        factorization)."""
+        self.solve = None
+        self.data = None
+
 
 @njit
 def _hessian_blocks_kernel(J, target, gradient, weight, first, second, quad_weight, w_b):

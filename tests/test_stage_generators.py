@@ -9,6 +9,7 @@ from perceptual_uv.core import loss_passes as lp
 from perceptual_uv.core import trianglewise as tw
 from perceptual_uv.core import worker_pool
 from perceptual_uv.core.chartfit import fit_charts, iter_fit_charts
+from perceptual_uv.core.meshwise import iter_solve_meshwise, solve_meshwise
 from perceptual_uv.core.progress import run_generator
 
 from meshes import grid_mesh as _grid_mesh  # noqa: E402  (tests/ is on sys.path under pytest)
@@ -168,3 +169,74 @@ def test_fit_charts_gives_the_chart_finish_steps_of_its_own(monkeypatch):
     assert events[-1] == (2 * steps, 2 * steps)
     np.testing.assert_array_equal(fit.uv, fit_charts(F, uv, targets, weights, weights, measure=measure,
                                                      max_iterations=3).uv)
+
+
+def test_a_slow_meshwise_iteration_hands_control_back(monkeypatch):
+    # Each Newton solve made to take 0.4 s (tea_set_01's factorizations take about a quarter of a second): the
+    # generator must come back every WAIT_SECONDS-like interval meanwhile, and reach the same result.
+    from perceptual_uv.core import meshwise_global
+
+    V, F, uv = grid_mesh()
+    targets = np.tile([0.1, 0.8, 0.7, 0.0], (8, 1))
+    weights = np.full(8, 1e-3)
+    plain = solve_meshwise(F, uv, targets, weights, weights, max_iterations=3)
+    newton_step = meshwise_global._NewtonSolver.newton_step
+
+    def slow(self, *args):
+        time.sleep(0.4)
+        return newton_step(self, *args)
+
+    monkeypatch.setattr(meshwise_global._NewtonSolver, "newton_step", slow)
+    stage = iter_solve_meshwise(F, uv, targets, weights, weights, max_iterations=3)
+    steps, longest = [], 0.0
+    while True:
+        started = time.perf_counter()
+        try:
+            steps.append(next(stage))
+        except StopIteration as finished:
+            result = finished.value
+            break
+        longest = max(longest, time.perf_counter() - started)
+    assert longest < 0.25
+    assert steps.count((0, 3)) >= 1 + 3  # the set-up, then the same count again while the first solve sleeps
+    assert list(dict.fromkeys(steps)) == [(i, 3) for i in range(result.iterations + 1)]
+    np.testing.assert_array_equal(result.uv, plain.uv)
+
+
+def test_the_meshwise_factorizations_are_made_and_dropped_in_one_thread(monkeypatch):
+    # scipy's SuperLU keeps a factor's memory when another thread than its own frees it (scipy issue 15921):
+    # every solve and the final release must run in the same thread, also when the generator is closed early.
+    from perceptual_uv.core import meshwise_global
+
+    V, F, uv = grid_mesh()
+    targets = np.tile([0.1, 0.8, 0.7, 0.0], (8, 1))
+    weights = np.full(8, 1e-3)
+    calls = []
+    newton_step, release = meshwise_global._NewtonSolver.newton_step, meshwise_global._NewtonSolver.release
+
+    def recorded_step(self, *args):
+        calls.append(("step", threading.get_ident()))
+        return newton_step(self, *args)
+
+    def recorded_release(self):
+        calls.append(("release", threading.get_ident()))
+        release(self)
+
+    monkeypatch.setattr(meshwise_global._NewtonSolver, "newton_step", recorded_step)
+    monkeypatch.setattr(meshwise_global._NewtonSolver, "release", recorded_release)
+    for closed_early in (False, True):
+        calls.clear()
+        stage = iter_solve_meshwise(F, uv, targets, weights, weights, max_iterations=3)
+        if closed_early:
+            while ("step", ) not in [call[:1] for call in calls]:
+                next(stage)
+            stage.close()
+        else:
+            run_generator(stage)
+        deadline = time.monotonic() + 10
+        while ("release",) not in [call[:1] for call in calls] and time.monotonic() < deadline:
+            time.sleep(0.01)
+        kinds = [kind for kind, _ in calls]
+        assert kinds.count("step") >= 1 and kinds[-1] == "release" and kinds.count("release") == 1
+        assert len({ident for _, ident in calls}) == 1
+        assert calls[0][1] != threading.get_ident()
