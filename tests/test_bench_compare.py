@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from perceptual_uv.bench.compare import _model_markdown, _previous_results
+from perceptual_uv.bench.compare import _previous_results
+from perceptual_uv.bench.compare_report import memory_figures, model_markdown, q_at_memory
 
 
 def _result(costs, screen=512):
@@ -46,7 +47,7 @@ def test_the_table_names_the_reused_methods():
     table = dict(model="m", vertices=3, faces=1, input_resolution=64, input_cost=10.0, epsilon=0.01,
                  evaluations=100, t_triangle=1.0, t_mesh=1.0, screen_pixels=512, surface_area=1.0,
                  pixel_saving=None, beaten_by={}, failures={}, reused=["input", "repacked"])
-    text = _model_markdown(table, {"input": _result([0.3])}, [0.3])
+    text = model_markdown(table, {"input": _result([0.3])}, [0.3])
     assert "not recomputed: input, repacked." in text
 
 
@@ -55,23 +56,21 @@ def _points(*pairs):
 
 
 def test_q_at_memory_interpolates_log_q_linearly_in_memory():
-    from perceptual_uv.bench.compare import _q_at_memory
 
     points = _points((0.2, 4e-3), (0.4, 1e-3))
     # halfway in memory: the geometric mean of the two q
-    assert _q_at_memory(points, 0.3) == pytest.approx(2e-3, rel=1e-12)
-    assert _q_at_memory(points, 0.25) == pytest.approx(4e-3 * 0.25 ** 0.25, rel=1e-12)
-    assert _q_at_memory(points, 0.201) == 4e-3  # within 2 % of a measured point: that point
-    assert _q_at_memory(points, 0.5) is None and _q_at_memory(points, 0.1) is None
+    assert q_at_memory(points, 0.3) == pytest.approx(2e-3, rel=1e-12)
+    assert q_at_memory(points, 0.25) == pytest.approx(4e-3 * 0.25 ** 0.25, rel=1e-12)
+    assert q_at_memory(points, 0.201) == 4e-3  # within 2 % of a measured point: that point
+    assert q_at_memory(points, 0.5) is None and q_at_memory(points, 0.1) is None
 
 
 def test_memory_figures_compare_at_equal_memory_and_name_what_was_not_measured():
-    from perceptual_uv.bench.compare import _memory_figures
 
     results = {"input": {"points": _points((0.2, 3e-3), (0.3, 2e-3), (0.5, 1e-3))},
                "MINIMUM_STRETCH": {"points": _points((0.18, 2.4e-3), (0.28, 2.2e-3), (0.45, 1.2e-3))},
                "ours": {"points": _points((0.25, 2e-3), (0.35, 1.25e-3), (0.6, 5e-4))}}
-    figures = _memory_figures(results)
+    figures = memory_figures(results)
     # ours at 0.3: halfway between 2e-3 and 1.25e-3 in log -> sqrt(2e-3 * 1.25e-3) = 1.58e-3
     assert figures["q"]["ours"][1] == pytest.approx((2e-3 * 1.25e-3) ** 0.5, rel=1e-12)
     assert figures["q"]["ours"][0] is None  # below ours' points

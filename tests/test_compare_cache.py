@@ -170,8 +170,8 @@ def fake_measurements(monkeypatch):
     monkeypatch.setattr(evaluate, "evaluate_uv_map", evaluate_uv_map)
     monkeypatch.setattr(evaluate, "render_views", lambda *a, **kw: [np.zeros((8, 8, 4))])
     monkeypatch.setattr(evaluate, "reference_resolution", lambda objects: 256)
-    monkeypatch.setattr(compare, "_plot", lambda *a, **kw: None)
-    monkeypatch.setattr(compare, "_crops", lambda *a, **kw: None)
+    monkeypatch.setattr(compare, "plot_curves", lambda *a, **kw: None)
+    monkeypatch.setattr(compare, "render_crops", lambda *a, **kw: None)
     return calls, state
 
 
@@ -237,7 +237,7 @@ def test_the_shaded_comparison_measures_downscale_on_the_input_map_by_memory(spo
 
     monkeypatch.setattr(evaluate_shaded, "evaluate_shaded", fake)
     monkeypatch.setattr(evaluate_shaded, "shaded_reference", lambda *a, **kw: {"shaded": [], "maps": []})
-    monkeypatch.setattr(compare, "_plot", lambda *a, **kw: None)
+    monkeypatch.setattr(compare, "plot_curves", lambda *a, **kw: None)
     out = tmp_path / "out"
     out.mkdir()
     cache = ResultCache(out / "cache", costs=[0.3], screen=512, evaluations=100, epsilon=0.01, shaded=True)
