@@ -138,10 +138,10 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
                     fold_tolerance=FOLD_TOLERANCE, stacks=None, topology=None):
     """Generator form of :func:`fit_charts`: yields ``(done, total)`` and returns the :class:`ChartFit`.
 
-    It yields once the charts are found; per fit after the solver's set-up and every iteration, before, between
-    and after the parts of the post-processing (:func:`finish_charts`: the fold restore's two shared areas, the
-    stacks, the chart turns; whole-mesh work that would otherwise share a step with the solver's last iteration
-    and what follows it), while ``measure`` (of both fits at once) runs if it is a generator, and when the
+    It yields once the charts are found; for the two fits, which iterate at the same time, after either's solver
+    set-up and every iteration; per fit before, between and after the parts of the post-processing
+    (:func:`finish_charts`: the fold restore's two shared areas, the stacks, the chart turns; whole-mesh work
+    that would otherwise share a step with the solver's last iteration and what follows it), while ``measure`` (of both fits at once) runs if it is a generator, and when the
     losses are in; then once between the two fits' shared areas that the choice compares. A modal operator that
     calls ``next`` once per timer tick thus never waits for more than one of these parts at a time.
     """
@@ -159,22 +159,33 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     steps = max_iterations + 1
     yield 0, 2 * steps  # the charts' topology is a step of its own
     candidates = []
-    for index, rotation_weights in enumerate((np.zeros_like(np.asarray(w_R, dtype=np.float64)), w_R)):
-        stage = iter_solve_meshwise(F, uv, targets, rotation_weights, w_S, topology=topology,
-                                    max_iterations=max_iterations, texel_scale=texel_scale)
-        while True:
-            try:
-                done, _ = next(stage)
-            except StopIteration as finished:
-                fit = finished.value
-                break
-            yield index * steps + done, 2 * steps
-        yield (index + 1) * steps - 1, 2 * steps  # the fold restore, the stacks and the turns are steps of their own
+    # The two fits are independent: driven in turn, each iterates in a thread of its own (SuperLU and numpy let
+    # the other run), so on two cores they take about the time of the longer one.
+    stages = [iter_solve_meshwise(F, uv, targets, rotation_weights, w_S, topology=topology,
+                                  max_iterations=max_iterations, texel_scale=texel_scale)
+              for rotation_weights in (np.zeros_like(np.asarray(w_R, dtype=np.float64)), w_R)]
+    done, fits = [0, 0], [None, None]
+    try:
+        while fits[0] is None or fits[1] is None:
+            for index, stage in enumerate(stages):
+                if fits[index] is not None:
+                    continue
+                try:
+                    done[index], _ = next(stage)
+                except StopIteration as finished:
+                    fits[index], done[index] = finished.value, max_iterations
+                yield sum(done), 2 * steps
+    finally:  # closed early (Esc): each fit's thread finishes its iteration and lets go
+        for stage in stages:
+            stage.close()
+    finishes = (2 * max_iterations, 2 * steps)
+    for fit in fits:
+        yield finishes  # the fold restore, the stacks and the turns are steps of their own
         finishing = _iter_finish_charts(uv, fit.uv, chart, alpha=targets[:, 0], w_R=w_R, texel_scale=texel_scale,
                                         fold_tolerance=fold_tolerance, stacks=stacks)
-        fitted, restored, angles = yield from report_while_waiting(finishing, ((index + 1) * steps - 1, 2 * steps))
+        fitted, restored, angles = yield from report_while_waiting(finishing, finishes)
         candidates.append((fit, fitted, restored, angles))
-        yield (index + 1) * steps - 1, 2 * steps  # and so is the start of what follows (next fit, measurement)
+        yield finishes  # and so is the start of what follows (the next finish, the measurement)
     # Both fits in one measurement: a loss pass prepares each triangle's views once for the two.
     measured = measure(tuple(fitted for _, fitted, _, _ in candidates))
     if inspect.isgenerator(measured):  # a long measurement that hands control back while it runs

@@ -45,6 +45,7 @@ the barrier, the gauge and the factorization in :mod:`.meshwise_global`):
 """
 import concurrent.futures
 import dataclasses
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,7 +54,8 @@ from .charts import UVTopology, uv_topology, validate_faces_and_uv
 from .deformation import jacobian, rotation
 from .meshwise_global import _edges_and_validity, _NewtonSolver, _Objective, _prepare
 from .meshwise_local import _frob2, _local_update_kernel, fit_energy
-from .progress import InThread, report_while_waiting, run_generator, wait_for
+from .progress import InThread, report_while_waiting, run_generator
+from .worker_pool import WAIT_SECONDS
 
 __all__ = ["MeshwiseResult", "solve_meshwise", "iter_solve_meshwise", "flipped_triangles"]
 
@@ -278,10 +280,7 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
     current = history[0]
 
     def iterate():
-        """One local step and the global step (Eq. 27). A factorization alone takes a quarter of a second on
-        tea_set_01's 43,662 unknowns, so the iterations run in a thread of their own (SuperLU and numpy let
-        other threads run) while the generator hands control back; always the same thread, which also drops
-        the factorizations (:meth:`_NewtonSolver.release`)."""
+        """One local step and the global step (Eq. 27), in the iterations' thread (below)."""
         nonlocal x, J, k, current, shift, w_b
         # Local step.
         if common:
@@ -324,18 +323,44 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
             w_b /= 20.0
             history[-1] = objective_of(J, k, R, S).value(J)
 
-    converged = False
-    iteration = 0
+    state = {"iterations": 0, "converged": False}
+    stop = threading.Event()
+
+    def iterate_until_converged():
+        for iteration in range(1, int(max_iterations) + 1):
+            if stop.is_set():  # the generator was closed
+                return
+            iterate()
+            state["iterations"] = iteration
+            if history[-2] - history[-1] <= tol * max(history[-1], 1e-9 * scale):
+                state["converged"] = True
+                return
+
     yield 0, int(max_iterations)  # the set-up is a step of its own
+    # A factorization alone takes a quarter of a second on tea_set_01's 43,662 unknowns: the iterations run one
+    # after the other in a thread of their own (SuperLU and numpy let other threads run), which also makes and
+    # drops every factorization (:meth:`_NewtonSolver.release`); the generator reports each iteration done and
+    # hands control back every WAIT_SECONDS meanwhile. Two fits driven in turn (fit_charts) iterate at the same
+    # time.
     iterating = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="perceptual_uv-meshwise")
     try:
-        for iteration in range(1, int(max_iterations) + 1):
-            yield from report_while_waiting(wait_for(iterating.submit(iterate)), (iteration - 1, int(max_iterations)))
-            yield iteration, int(max_iterations)
-            if history[-2] - history[-1] <= tol * max(history[-1], 1e-9 * scale):
-                converged = True
+        running = iterating.submit(iterate_until_converged)
+        reported = 0
+        while True:
+            try:
+                running.result(timeout=WAIT_SECONDS)
+                finished = True
+            except concurrent.futures.TimeoutError:
+                finished = False
+            if state["iterations"] == reported and not finished:
+                yield reported, int(max_iterations)  # still in the same iteration
+            while reported < state["iterations"]:
+                reported += 1
+                yield reported, int(max_iterations)
+            if finished:
                 break
     finally:  # also when the generator is closed mid-iteration: the thread finishes it, then lets go
+        stop.set()
         iterating.submit(solver.release)
         iterating.shutdown(wait=False)
 
@@ -346,14 +371,14 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
         uv=topology.corner_uv(x),
         vertex_uv=x,
         topology=topology,
-        iterations=iteration,
+        iterations=state["iterations"],
         energy_history=np.asarray(history),
         fit_energy=float((a * final_fit)[valid].sum()),
         quarter_turns=k if not common else k_final,
         flipped=int(np.sum(valid & ~(det > 0))),
         degenerate=int(np.sum(~valid)),
         barrier_weight=float(w_b),
-        converged=converged,
+        converged=state["converged"],
     )
 
 

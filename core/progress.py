@@ -1,9 +1,8 @@
 """Progress of a run: driving a stage written as a generator, and the whole run's fraction and time left."""
-import concurrent.futures
 import threading
 import time
 
-__all__ = ["run_generator", "report_while_waiting", "relay_stage", "InThread", "wait_for", "RunProgress",
+__all__ = ["run_generator", "report_while_waiting", "relay_stage", "InThread", "RunProgress",
            "format_seconds"]
 
 
@@ -38,16 +37,6 @@ def report_while_waiting(waiting, progress):
         except StopIteration as finished:
             return finished.value
         yield progress
-
-
-def wait_for(future, interval=0.1):
-    """Generator: yield None every ``interval`` seconds until ``future`` (a :class:`concurrent.futures.Future`,
-    e.g. of a one-thread executor's ``submit``) is done; return its result, or raise its exception."""
-    while True:
-        try:
-            return future.result(timeout=interval)
-        except concurrent.futures.TimeoutError:
-            yield None
 
 
 class InThread:

@@ -157,14 +157,17 @@ def test_fit_charts_gives_the_chart_finish_steps_of_its_own(monkeypatch):
     fit = run_generator(iter_fit_charts(F, uv, targets, weights, weights, measure=measure, max_iterations=3),
                         lambda *step: events.append(step))
     steps = 3 + 1
+    finishes = (2 * 3, 2 * steps)  # both fits' iterations done
+    solved = [n for n, event in enumerate(events) if event == "solved"]
+    assert len(solved) == 2
     for index in range(2):
         at = [n for n, event in enumerate(events) if event == "finish"][index]
         end = [n for n, event in enumerate(events) if event == "finished"][index]
-        assert events[at - 2:at] == ["solved", ((index + 1) * steps - 1, 2 * steps)]  # a yield before the finish
+        assert at > solved[-1] + 1 and events[at - 1] == finishes  # after both fits, a yield before the finish
         # the fold restore yields after each of its two shared areas (no stacks here: the turns follow)
-        assert events[at + 1:end] == [((index + 1) * steps - 1, 2 * steps)] * 2
-        assert events[end + 1] == ((index + 1) * steps - 1, 2 * steps)  # and one between it and what follows:
-        assert events[end + 2] == ("measure" if index == 1 else (steps, 2 * steps))  # the next fit, the measurement
+        assert events[at + 1:end] == [finishes] * 2
+        assert events[end + 1] == finishes  # and one between it and what follows:
+        assert events[end + 2] == ("measure" if index == 1 else finishes)  # the next finish, the measurement
     assert events.count("measure") == 1  # both fits in one measurement
     assert events[-1] == (2 * steps, 2 * steps)
     np.testing.assert_array_equal(fit.uv, fit_charts(F, uv, targets, weights, weights, measure=measure,
@@ -240,3 +243,34 @@ def test_the_meshwise_factorizations_are_made_and_dropped_in_one_thread(monkeypa
         assert kinds.count("step") >= 1 and kinds[-1] == "release" and kinds.count("release") == 1
         assert len({ident for _, ident in calls}) == 1
         assert calls[0][1] != threading.get_ident()
+
+
+def test_the_two_meshwise_fits_iterate_at_the_same_time(monkeypatch):
+    # Each Newton solve made to take 0.2 s: driven in turn, the fit without and the fit with rotation targets
+    # solve in two threads whose solves overlap, and the result is the one of the fits run one after the other.
+    from perceptual_uv.core import meshwise_global
+
+    V, F, uv = grid_mesh()
+    targets = np.tile([0.1, 0.8, 0.7, 0.0], (8, 1))
+    weights = np.full(8, 1e-3)
+
+    def measure(fits):
+        return lp.losses_at(V, F, uv, texture(), np.stack(fits))
+
+    one_after_the_other = [solve_meshwise(F, uv, targets, rotation_weights, weights, max_iterations=2).uv
+                           for rotation_weights in (np.zeros(8), weights)]
+    solves = []
+    newton_step = meshwise_global._NewtonSolver.newton_step
+
+    def slow(self, *args):
+        started = time.perf_counter()
+        time.sleep(0.2)
+        solves.append((threading.get_ident(), started, time.perf_counter()))
+        return newton_step(self, *args)
+
+    monkeypatch.setattr(meshwise_global._NewtonSolver, "newton_step", slow)
+    fit = run_generator(iter_fit_charts(F, uv, targets, weights, weights, measure=measure, max_iterations=2))
+    assert len({ident for ident, _, _ in solves}) == 2
+    assert any(a[0] != b[0] and a[1] < b[2] and b[1] < a[2] for a in solves for b in solves)
+    for made, expected in zip(fit.fits, one_after_the_other):
+        np.testing.assert_array_equal(made.uv, expected)
