@@ -141,9 +141,10 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     It yields once the charts are found; for the two fits, which iterate at the same time, after either's solver
     set-up and every iteration; per fit before, between and after the parts of the post-processing
     (:func:`finish_charts`: the fold restore's two shared areas, the stacks, the chart turns; whole-mesh work
-    that would otherwise share a step with the solver's last iteration and what follows it), while ``measure`` (of both fits at once) runs if it is a generator, and when the
-    losses are in; then once between the two fits' shared areas that the choice compares. A modal operator that
-    calls ``next`` once per timer tick thus never waits for more than one of these parts at a time.
+    that would otherwise share a step with the solver's last iteration and what follows it), while ``measure``
+    (of both fits at once) runs if it is a generator, and when the losses are in; then once between the two
+    fits' shared areas that the choice compares. A modal operator that calls ``next`` once per timer tick thus
+    never waits for more than one of these parts at a time.
     """
     F = np.asarray(F)
     uv = np.asarray(uv, dtype=np.float64)
