@@ -161,7 +161,7 @@ def iter_fit_charts(F, uv, targets, w_R, w_S, *, measure, texel_scale=(1.0, 1.0)
     yield 0, 2 * steps  # the charts' topology is a step of its own
     candidates = []
     # The two fits are independent: driven in turn, each iterates in a thread of its own (SuperLU and numpy let
-    # the other run), so on two cores they take about the time of the longer one.
+    # the other run), so on two cores they overlap.
     stages = [iter_solve_meshwise(F, uv, targets, rotation_weights, w_S, topology=topology,
                                   max_iterations=max_iterations, texel_scale=texel_scale)
               for rotation_weights in (np.zeros_like(np.asarray(w_R, dtype=np.float64)), w_R)]
