@@ -58,7 +58,8 @@ class _Parser(argparse.ArgumentParser):
 def _existing_model(text):
     path = pathlib.Path(text)
     if path.suffix.lower() not in MODEL_SUFFIXES:
-        raise argparse.ArgumentTypeError(f"{text}: unsupported input type (expected one of {', '.join(MODEL_SUFFIXES)})")
+        raise argparse.ArgumentTypeError(
+            f"{text}: unsupported input type (expected one of {', '.join(MODEL_SUFFIXES)})")
     if not path.is_file():
         raise argparse.ArgumentTypeError(f"{text}: no such file")
     return path

@@ -174,7 +174,8 @@ def _peak_entry(own, others, count):
 
 def measure(tree, path, settings_options):
     """Run ``path`` in a child process on the package at ``tree``; its measurements and peak tree memory."""
-    package_root = pathlib.Path(tempfile.gettempdir()) / f"perceptual_uv-bench-path-{hashlib.sha1(str(tree).encode()).hexdigest()[:12]}"
+    tree_hash = hashlib.sha1(str(tree).encode()).hexdigest()[:12]
+    package_root = pathlib.Path(tempfile.gettempdir()) / f"perceptual_uv-bench-path-{tree_hash}"
     package_root.mkdir(exist_ok=True)
     link = package_root / "perceptual_uv"
     if not link.exists():

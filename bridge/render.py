@@ -17,8 +17,8 @@ BOTTOM of the picture (like ``image.pixels`` and the project's textures). For an
 right vector ``R``, up vector ``U`` and scale ``s`` (the larger image side spans ``s`` world units), the
 centre of pixel (row ``i``, column ``j``) sees the world point
 ``position + R * s * ((j + 0.5) / W - 0.5) * W / max(W, H) + U * s * ((i + 0.5) / H - 0.5) * H / max(W, H)``.
-Alpha is 0 where no surface is visible (transparent film); texture alpha is ignored (opaque surfaces). Anti-aliasing is off by default, so each pixel
-is one sample at its centre.
+Alpha is 0 where no surface is visible (transparent film); texture alpha is ignored (opaque surfaces).
+Anti-aliasing is off by default, so each pixel is one sample at its centre.
 """
 import contextlib
 import dataclasses

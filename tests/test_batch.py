@@ -318,7 +318,8 @@ def test_one_batch_at_a_time_per_output_folder(tmp_path):
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         result = run_batch_cli(str(tmp_path / "lib"), "--out", str(tmp_path / "out"), timeout=120)
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines()[-1] == f"perceptual_uv: error: another batch is running on {tmp_path / 'out'}"
+    last_line = result.stderr.strip().splitlines()[-1]
+    assert last_line == f"perceptual_uv: error: another batch is running on {tmp_path / 'out'}"
     assert not (tmp_path / "out" / "manifest.jsonl").exists()
 
 

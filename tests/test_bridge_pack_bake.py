@@ -70,7 +70,8 @@ def test_pack_uses_one_scale_and_quarter_turns_only():
         # The linear part maps old edge vectors to new ones: it must be s * R(k pi/2), the same s for all islands.
         linear, *_ = np.linalg.lstsq(old[1:] - old[0], new[1:] - new[0], rcond=None)
         s = np.sqrt(abs(np.linalg.det(linear)))
-        quarter_turns = [np.array([[1, 0], [0, 1]]), np.array([[0, 1], [-1, 0]]), -np.eye(2), np.array([[0, -1], [1, 0]])]
+        quarter_turns = [np.array([[1, 0], [0, 1]]), np.array([[0, 1], [-1, 0]]), -np.eye(2),
+                         np.array([[0, -1], [1, 0]])]
         assert min(np.abs(linear / s - turn).max() for turn in quarter_turns) < 1e-4
         scales.append(s)
     np.testing.assert_allclose(scales, scales[0], rtol=1e-4)

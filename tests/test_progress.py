@@ -65,7 +65,8 @@ def test_bad_shares_are_refused():
             RunProgress(shares)
 
 
-@pytest.mark.parametrize("seconds, text", [(0.4, "0 s"), (59.4, "59 s"), (65, "1 min 05 s"), (3600 + 125, "1 h 02 min")])
+@pytest.mark.parametrize("seconds, text",
+                         [(0.4, "0 s"), (59.4, "59 s"), (65, "1 min 05 s"), (3600 + 125, "1 h 02 min")])
 def test_format_seconds(seconds, text):
     assert format_seconds(seconds) == text
 
