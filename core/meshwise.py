@@ -43,7 +43,6 @@ the barrier, the gauge and the factorization in :mod:`.meshwise_global`):
 * Eq. 28 compares the weighted terms of Eq. 27: ``w_b`` is divided by 20 after an iteration in which
   ``w_b E_barrier > w_rs E_rs``. Lowering ``w_b`` only lowers the objective, so the history stays monotone.
 """
-import concurrent.futures
 import dataclasses
 import threading
 from dataclasses import dataclass
@@ -55,7 +54,6 @@ from .deformation import jacobian, rotation
 from .meshwise_global import _edges_and_validity, _NewtonSolver, _Objective, _prepare
 from .meshwise_local import _frob2, _local_update_kernel, fit_energy
 from .progress import InThread, report_while_waiting, run_generator
-from .worker_pool import WAIT_SECONDS
 
 __all__ = ["MeshwiseResult", "solve_meshwise", "iter_solve_meshwise", "flipped_triangles"]
 
@@ -323,46 +321,47 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
             w_b /= 20.0
             history[-1] = objective_of(J, k, R, S).value(J)
 
-    state = {"iterations": 0, "converged": False}
+    iterations = [0]  # done so far, written by the iterations' thread
     stop = threading.Event()
 
     def iterate_until_converged():
-        for iteration in range(1, int(max_iterations) + 1):
-            if stop.is_set():  # the generator was closed
-                return
-            iterate()
-            state["iterations"] = iteration
-            if history[-2] - history[-1] <= tol * max(history[-1], 1e-9 * scale):
-                state["converged"] = True
-                return
+        """Whether the iterations converged; the factorizations are dropped in this thread (scipy issue 15921,
+        :meth:`_NewtonSolver.release`)."""
+        try:
+            for iteration in range(1, int(max_iterations) + 1):
+                if stop.is_set():  # the generator was closed
+                    return False
+                iterate()
+                iterations[0] = iteration
+                if history[-2] - history[-1] <= tol * max(history[-1], 1e-9 * scale):
+                    return True
+            return False
+        finally:
+            solver.release()
 
     yield 0, int(max_iterations)  # the set-up is a step of its own
     # A factorization alone takes a quarter of a second on tea_set_01's 43,662 unknowns: the iterations run one
-    # after the other in a thread of their own (SuperLU and numpy let other threads run), which also makes and
-    # drops every factorization (:meth:`_NewtonSolver.release`); the generator reports each iteration done and
-    # hands control back every WAIT_SECONDS meanwhile. Two fits driven in turn (fit_charts) iterate at the same
-    # time.
-    iterating = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="perceptual_uv-meshwise")
+    # after the other in a thread of their own (SuperLU and numpy let other threads run), and the generator
+    # reports each iteration done and hands control back every 0.1 s meanwhile. Two fits driven in turn
+    # (fit_charts) iterate at the same time.
+    waiting = InThread(iterate_until_converged).wait()
+    reported = 0
     try:
-        running = iterating.submit(iterate_until_converged)
-        reported = 0
         while True:
             try:
-                running.result(timeout=WAIT_SECONDS)
-                finished = True
-            except concurrent.futures.TimeoutError:
+                next(waiting)
                 finished = False
-            if state["iterations"] == reported and not finished:
+            except StopIteration as returned:
+                converged, finished = returned.value, True
+            if iterations[0] == reported and not finished:
                 yield reported, int(max_iterations)  # still in the same iteration
-            while reported < state["iterations"]:
+            while reported < iterations[0]:
                 reported += 1
                 yield reported, int(max_iterations)
             if finished:
                 break
     finally:  # also when the generator is closed mid-iteration: the thread finishes it, then lets go
         stop.set()
-        iterating.submit(solver.release)
-        iterating.shutdown(wait=False)
 
     x = _carry_loose_vertices(x, problem, texel_topology, J) / frame
     final_fit, k_final = fit_energy(J, R_bar, S_bar, w_R, w_S, formulation=formulation)
@@ -371,14 +370,14 @@ def iter_solve_meshwise(F, uv, targets, w_R=None, w_S=None, *, weights="perceptu
         uv=topology.corner_uv(x),
         vertex_uv=x,
         topology=topology,
-        iterations=state["iterations"],
+        iterations=iterations[0],
         energy_history=np.asarray(history),
         fit_energy=float((a * final_fit)[valid].sum()),
         quarter_turns=k if not common else k_final,
         flipped=int(np.sum(valid & ~(det > 0))),
         degenerate=int(np.sum(~valid)),
         barrier_weight=float(w_b),
-        converged=state["converged"],
+        converged=converged,
     )
 
 

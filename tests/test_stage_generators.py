@@ -176,7 +176,7 @@ def test_fit_charts_gives_the_chart_finish_steps_of_its_own(monkeypatch):
 
 def test_a_slow_meshwise_iteration_hands_control_back(monkeypatch):
     # Each Newton solve made to take 0.4 s (tea_set_01's factorizations take about a quarter of a second): the
-    # generator must come back every WAIT_SECONDS meanwhile and reach the same result.
+    # generator must come back every 0.1 s meanwhile and reach the same result.
     from perceptual_uv.core import meshwise_global
 
     V, F, uv = grid_mesh()
