@@ -13,8 +13,10 @@ freezes for as long as one step takes), and the peak memory of the run's whole p
 process and its worker or bake processes, sampled every 0.1 s): the sum of their resident sizes, and the sum of
 their proportional set sizes, which counts the pages they share (the workers' shared arrays) once, with the stage
 it came in and how it splits between the pipeline process and the others; below each row, the five longest steps
-with the stage and message of the progress report they follow. ``--json`` also holds each stage's peak
-(``peak_by_stage``, proportional).
+with the stage and message of the progress report they follow, and how many cores were busy on average during
+each stage (the CPU time of the whole process tree over the stage's wall time: where it stays below the cores,
+a stage waits on one process). ``--json`` also holds each stage's peak (``peak_by_stage``, proportional) and
+CPU and wall seconds (``cpu_by_stage``).
 
 ``--operator`` runs with the settings the modal operator adds to the defaults (``bake_in_background``), the way
 "Optimize UVs" drives the pipeline in the interface; ``--set NAME=VALUE`` sets any field of
@@ -167,6 +169,22 @@ def tree_memory(pid):
     return own, others, count
 
 
+def tree_cpu_ticks(pid):
+    """Clock ticks of CPU time (user + system) used so far by ``pid`` and by each of its live descendants:
+    ``{pid: ticks}``."""
+    tree, ticks, stack = _children(), {}, [pid]
+    while stack:
+        current = stack.pop()
+        try:
+            with open(f"/proc/{current}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()
+            ticks[current] = int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of stat)
+        except (OSError, IndexError, ValueError):
+            pass
+        stack.extend(tree.get(current, []))
+    return ticks
+
+
 def _peak_entry(own, others, count):
     return {"total_gib": (own + others) / 2 ** 30, "pipeline_gib": own / 2 ** 30, "others_gib": others / 2 ** 30,
             "other_processes": count}
@@ -190,8 +208,16 @@ def measure(tree, path, settings_options):
                              text=True)
     # stage -> (total, own, others, count) in proportional bytes at the stage's highest total; the resident sum too
     peaks, stage, peak_resident = {}, "start", 0
+    # stage -> [CPU seconds of the whole tree, wall seconds], from the ticks each process used between samples (a
+    # process that ends between two samples loses at most its last 0.1 s)
+    busy, last_ticks, last_sample, tick = {}, {}, time.perf_counter(), os.sysconf("SC_CLK_TCK")
     while child.poll() is None:
         own, others, count = tree_memory(child.pid)
+        ticks, now = tree_cpu_ticks(child.pid), time.perf_counter()
+        entry = busy.setdefault(stage, [0.0, 0.0])
+        entry[0] += sum(max(value - last_ticks.get(pid, 0), 0) for pid, value in ticks.items()) / tick
+        entry[1] += now - last_sample
+        last_ticks, last_sample = ticks, now
         with contextlib.suppress(OSError):
             stage = stage_file.read_text().strip() or stage
         peak_resident = max(peak_resident, own[0] + others[0])
@@ -208,6 +234,8 @@ def measure(tree, path, settings_options):
     result["peak_stage"] = max(peaks, key=lambda name: peaks[name][0]) if peaks else "none"
     result["peak_pss_gib"] = peaks[result["peak_stage"]][0] / 2 ** 30 if peaks else 0.0
     result["peak_rss_gib"] = peak_resident / 2 ** 30
+    result["cpu_by_stage"] = {name: {"cpu_s": cpu, "wall_s": wall, "cores_busy": cpu / wall if wall else 0.0}
+                              for name, (cpu, wall) in busy.items()}
     return result
 
 
@@ -255,6 +283,14 @@ def _row(label, result):
     return (f"  {label:<14} {stages}  {result['triangle_ms_per_face']:7.1f} ms/face  longest step "
             f"{result['longest_step_s']:6.2f} s ({result['longest_step_stage']})  peak {result['peak_rss_gib']:.2f} GiB"
             f"{where}")
+
+
+def _busy_row(result):
+    """Cores busy on average during each stage (CPU seconds of the process tree over wall seconds)."""
+    stages = result.get("cpu_by_stage", {})
+    parts = [f"{name} {stages[name]['cores_busy']:.2f}" for name in ("read", "triangle", "mesh", "pack", "bake")
+             if name in stages and stages[name]["wall_s"] > 0.5]
+    return f"      cores busy (of {os.cpu_count()}): " + ", ".join(parts) if parts else ""
 
 
 def _ratio_row(result, reference):
@@ -323,6 +359,7 @@ def main(argv=None):
             result = measure(tree, path, settings)
             results.setdefault(path.parent.name, {})[label] = result
             print(_row(label, result), flush=True)
+            print(_busy_row(result), flush=True)
             print("\n".join(_steps(result)), flush=True)
         if args.against:
             print(_ratio_row(results[path.parent.name]["this"], results[path.parent.name][trees[1][0]]), flush=True)
