@@ -1,14 +1,21 @@
 """The per-triangle orthographic camera of App. A (Algorithm 1), vectorized over triangles.
 
-For triangle ``(a, b, c)`` the camera sits at ``C + 500 N`` (``C`` the barycentre, ``N`` the unit normal),
-looks along ``-N`` with up vector ``U``, and its orthographic window is the triangle's bounding box in the
-``(R, U)`` frame, widened along the shorter side to a square. ``R`` points from ``C`` to ``a``, ``U = N x R``,
-so the camera's right axis (``front x up = -N x U``) is ``R``.
+For triangle ``(a, b, c)`` the camera sits at ``C + 500 N`` (``C`` the barycentre, ``N`` the unit normal) and
+looks along ``-N`` with up vector ``U``, as in Algorithm 1. Its right axis ``R`` runs along the triangle's
+longest edge and ``U = N x R`` (Algorithm 1 turns ``R`` towards the first corner ``a``); the view is the
+triangle's bounding box in the ``(R, U)`` frame, the smallest rectangle around a triangle, which has a side on
+its longest edge. The screen is App. A's square on that box (``n x n`` pixels, the box centred in it, its
+side the longest edge), but only the pixels whose centres lie in the drawn box are drawn: the triangle's box
+with a band of its surroundings :data:`BOX_MARGIN` of the longest edge wide above and below it, within the
+square. App. A's square spends most of a sliver's view, and much of any other, on what lies beside the
+triangle; the band keeps the texture next to the triangle in view (a view without it judged spot's painted
+edges too leniently).
 
 Screen convention used by every module of the package: pixel ``(i, j)`` (row ``i``, column ``j``) of an
 ``n x n`` screen has its centre at ``(left + (j + 0.5) s / n, bottom + (i + 0.5) s / n)`` in the ``(R, U)``
-frame, ``s = right - left = top - bottom``: row 0 is the BOTTOM of the view (like Blender's render result
-and ``image.pixels``), and pixels are sampled at their centres (as Blender's workbench does with one sample).
+frame, ``s = right - left = top - bottom`` the square's side: row 0 is the BOTTOM of the view (like Blender's
+render result and ``image.pixels``), and pixels are sampled at their centres (as Blender's workbench does with
+one sample).
 
 The window is centred on the bounding box, which need not be centred on ``C``; ``view_centre`` gives the
 world point at the window's centre (put a Blender orthographic camera there, ``ortho_scale = size``).
@@ -20,8 +27,8 @@ import numpy as np
 from .charts import texel_areas
 from .mesh import check_mesh
 
-__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "MAX_SCREEN_PIXELS", "TriangleCameras", "triangle_cameras",
-           "texel_matched_pixels"]
+__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "MAX_SCREEN_PIXELS", "BOX_MARGIN", "TriangleCameras",
+           "triangle_cameras", "texel_matched_pixels"]
 
 #: Distance of the eye from the barycentre along ``N`` (Algorithm 1, line 7).
 EYE_DISTANCE = 500.0
@@ -31,6 +38,9 @@ CLIP_FAR = 1000.0
 #: Largest side a view grows to for one pixel per texel (:func:`texel_matched_pixels`); a triangle spanning
 #: more texels across its window is seen minified.
 MAX_SCREEN_PIXELS = 256
+#: Band of the surroundings drawn above and below the triangle's box, as a fraction of its longest edge (the
+#: box's width); the drawn box stays within the square screen.
+BOX_MARGIN = 0.125
 
 
 @dataclass(frozen=True)
@@ -51,6 +61,9 @@ class TriangleCameras:
         The screen is ``screen_pixels x screen_pixels``.
     valid : (k,) ndarray of bool
         False for degenerate triangles (zero area); their other fields are NaN.
+    box : (k, 4) ndarray
+        ``(left, right, bottom, top)`` of the drawn part of the window: the triangle's bounding box, as wide as
+        the window, with a band :data:`BOX_MARGIN` of its width above and below (within the window).
     """
 
     faces: np.ndarray
@@ -61,6 +74,7 @@ class TriangleCameras:
     bounds: np.ndarray
     screen_pixels: int
     valid: np.ndarray
+    box: np.ndarray
 
     def __len__(self):
         return len(self.faces)
@@ -69,7 +83,8 @@ class TriangleCameras:
         """Cameras of the selected rows (an int keeps a length-1 batch)."""
         index = np.atleast_1d(np.asarray(index))
         return TriangleCameras(self.faces[index], self.origin[index], self.right[index], self.up[index],
-                               self.normal[index], self.bounds[index], self.screen_pixels, self.valid[index])
+                               self.normal[index], self.bounds[index], self.screen_pixels, self.valid[index],
+                               self.box[index])
 
     @property
     def size(self):
@@ -139,7 +154,8 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
 
     References
     ----------
-    Sun et al. 2022, App. A, Algorithm 1.
+    Sun et al. 2022, App. A, Algorithm 1 (the eye, clip planes and window; ``R`` along the longest edge and the
+    drawn box are this project's, see docs/DECISIONS.md).
     """
     V, F = check_mesh(V, F)
     if int(screen_pixels) != screen_pixels or screen_pixels < 1:
@@ -150,28 +166,35 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
 
     a, b, c = (V[F[faces, k]] for k in range(3))
     centre = (a + b + c) / 3.0
+    corners = np.stack([a, b, c], axis=1) - centre[:, None, :]
     with np.errstate(invalid="ignore", divide="ignore"):
         normal = np.cross(b - a, c - a)
         normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-        right = a - centre
-        right /= np.linalg.norm(right, axis=1, keepdims=True)
+        # R along the longest edge: a triangle's smallest enclosing rectangle has a side on it.
+        edges = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 1],
+                          corners[:, 0] - corners[:, 2]], axis=1)
+        lengths = np.linalg.norm(edges, axis=2)
+        longest = np.argmax(lengths, axis=1)
+        right = edges[np.arange(len(faces)), longest] / lengths[np.arange(len(faces)), longest][:, None]
         up = np.cross(normal, right)
         up /= np.linalg.norm(up, axis=1, keepdims=True)
     valid = np.isfinite(normal).all(1) & np.isfinite(right).all(1) & np.isfinite(up).all(1)
 
-    corners = np.stack([a, b, c], axis=1) - centre[:, None, :]
     x = np.einsum("kvd,kd->kv", corners, right)
     y = np.einsum("kvd,kd->kv", corners, up)
     left, rgt = x.min(1), x.max(1)
     bottom, top = y.min(1), y.max(1)
     width, height = rgt - left, top - bottom
-    grow_y = np.maximum(width - height, 0.0) / 2.0
-    grow_x = np.maximum(height - width, 0.0) / 2.0
-    bounds = np.stack([left - grow_x, rgt + grow_x, bottom - grow_y, top + grow_y], axis=1)
+    # R runs along the longest edge, so the box is at least as wide as high: the square grows it upwards and
+    # downwards only, and the drawn box by BOX_MARGIN of its width on each side, at most to the square.
+    grow_y = (width - height) / 2.0
+    bounds = np.stack([left, rgt, bottom - grow_y, top + grow_y], axis=1)
+    band = np.minimum(BOX_MARGIN * width, grow_y)
+    box = np.stack([left, rgt, bottom - band, top + band], axis=1)
 
-    for field in (centre, normal, right, up, bounds):
+    for field in (centre, normal, right, up, bounds, box):
         field[~valid] = np.nan
-    return TriangleCameras(faces, centre, right, up, normal, bounds, int(screen_pixels), valid)
+    return TriangleCameras(faces, centre, right, up, normal, bounds, int(screen_pixels), valid, box)
 
 
 def texel_matched_pixels(V, F, uv, texture_shape, faces=None, *, minimum=64, maximum=MAX_SCREEN_PIXELS):

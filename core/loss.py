@@ -488,7 +488,7 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
             draw = _window_faces_kernel(V, F, ring_offsets, ring, int(f), frames[row], cameras.bounds[row],
                                         WINDOW_FACE_LIMIT, stamp, row + 1)
         views.append(_rasterize_kernel(V, F, draw, cameras.origin[row], cameras.right[row], cameras.up[row],
-                                       cameras.normal[row], cameras.bounds[row], n))
+                                       cameras.normal[row], cameras.bounds[row], cameras.box[row], n))
         offsets[row + 1] = offsets[row] + len(views[-1][0])
     pixel = np.concatenate([view[0] for view in views]).astype(np.int64) if k else np.zeros(0, np.int64)
     batches = []

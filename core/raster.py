@@ -54,7 +54,7 @@ class Raster:
 
 
 @njit
-def _rasterize_kernel(V, F, draw, origin, right, up, normal, bounds, n):
+def _rasterize_kernel(V, F, draw, origin, right, up, normal, bounds, box, n):
     npix = n * n
     depth = np.full(npix, -np.inf)
     hit_face = np.full(npix, -1, np.int64)
@@ -64,6 +64,11 @@ def _rasterize_kernel(V, F, draw, origin, right, up, normal, bounds, n):
     xs = np.empty(3)
     ys = np.empty(3)
     hs = np.empty(3)
+    # Pixels whose centre lies in the triangle's box.
+    box_j0 = max(int(np.ceil((box[0] - left) / step - 0.5)), 0)
+    box_j1 = min(int(np.floor((box[1] - left) / step - 0.5)), n - 1)
+    box_i0 = max(int(np.ceil((box[2] - bottom) / step - 0.5)), 0)
+    box_i1 = min(int(np.floor((box[3] - bottom) / step - 0.5)), n - 1)
     for t in range(draw.shape[0]):
         f = draw[t]
         for k in range(3):
@@ -77,10 +82,10 @@ def _rasterize_kernel(V, F, draw, origin, right, up, normal, bounds, n):
         if area2 == 0.0:
             continue  # seen edge-on: covers no pixel centre
         # Pixel columns j with centre x in [min x, max x], rows likewise.
-        j0 = max(int(np.ceil((min(xs[0], xs[1], xs[2]) - left) / step - 0.5)), 0)
-        j1 = min(int(np.floor((max(xs[0], xs[1], xs[2]) - left) / step - 0.5)), n - 1)
-        i0 = max(int(np.ceil((min(ys[0], ys[1], ys[2]) - bottom) / step - 0.5)), 0)
-        i1 = min(int(np.floor((max(ys[0], ys[1], ys[2]) - bottom) / step - 0.5)), n - 1)
+        j0 = max(int(np.ceil((min(xs[0], xs[1], xs[2]) - left) / step - 0.5)), box_j0)
+        j1 = min(int(np.floor((max(xs[0], xs[1], xs[2]) - left) / step - 0.5)), box_j1)
+        i0 = max(int(np.ceil((min(ys[0], ys[1], ys[2]) - bottom) / step - 0.5)), box_i0)
+        i1 = min(int(np.floor((max(ys[0], ys[1], ys[2]) - bottom) / step - 0.5)), box_i1)
         for i in range(i0, i1 + 1):
             y = bottom + (i + 0.5) * step
             for j in range(j0, j1 + 1):
@@ -130,6 +135,8 @@ def _rasterize_reference(V, F, draw, camera):
     depth = np.full(n * n, -np.inf)
     face = np.full(n * n, -1, np.int64)
     bary = np.zeros((n * n, 3))
+    box = camera.box[0]
+    in_box = (x >= box[0]) & (x <= box[1]) & (y >= box[2]) & (y <= box[3])
     for f in draw:
         d = V[F[f]] - origin
         xs, ys, hs = d @ right, d @ up, d @ normal
@@ -141,7 +148,7 @@ def _rasterize_reference(V, F, draw, camera):
         b0 = 1.0 - b1 - b2
         h = b0 * hs[0] + b1 * hs[1] + b2 * hs[2]
         inside = (b0 >= -_INSIDE_TOLERANCE) & (b1 >= -_INSIDE_TOLERANCE) & (b2 >= -_INSIDE_TOLERANCE)
-        wins = inside & (h <= _HEIGHT_MAX) & (h >= _HEIGHT_MIN) & (h > depth)
+        wins = in_box & inside & (h <= _HEIGHT_MAX) & (h >= _HEIGHT_MIN) & (h > depth)
         depth[wins] = h[wins]
         face[wins] = f
         bary[wins] = np.stack([b0, b1, b2], axis=1)[wins]
@@ -152,7 +159,8 @@ def _rasterize_reference(V, F, draw, camera):
 def rasterize(V, F, draw, camera):
     """Ray-cast the pixel centres of one orthographic camera against a set of triangles.
 
-    Each pixel sees the drawn triangle nearest to the eye (largest height along ``N``) among those whose hit
+    Only pixels whose centre lies in the camera's ``box`` (the triangle's own box, :mod:`.camera`) are drawn.
+    Each of them sees the drawn triangle nearest to the eye (largest height along ``N``) among those whose hit
     point lies between the near and far planes of Algorithm 1; both faces of a triangle are visible (no
     back-face culling, like Blender's workbench default). A pixel centre on a shared edge goes to one of the
     two triangles.
@@ -181,7 +189,7 @@ def rasterize(V, F, draw, camera):
         empty = np.zeros(0, np.int64)
         return Raster(empty, empty.copy(), np.zeros((0, 3)), n)
     pixel, face, bary = _rasterize_kernel(V, F, draw, camera.origin[0], camera.right[0], camera.up[0],
-                                          camera.normal[0], camera.bounds[0], n)
+                                          camera.normal[0], camera.bounds[0], camera.box[0], n)
     return Raster(pixel, face, bary, n)
 
 
