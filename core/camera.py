@@ -27,7 +27,7 @@ import numpy as np
 from .charts import texel_areas
 from .mesh import check_mesh
 
-__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "MAX_SCREEN_PIXELS", "BOX_MARGIN", "TriangleCameras",
+__all__ = ["EYE_DISTANCE", "CLIP_NEAR", "CLIP_FAR", "MAX_SCREEN_PIXELS", "BOX_MARGIN", "WINDOWS", "TriangleCameras",
            "triangle_cameras", "texel_matched_pixels"]
 
 #: Distance of the eye from the barycentre along ``N`` (Algorithm 1, line 7).
@@ -129,7 +129,11 @@ class TriangleCameras:
         return (self.origin[row] + x[None, :, None] * self.right[row] + y[:, None, None] * self.up[row])
 
 
-def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
+#: What a view draws (:func:`triangle_cameras`): the triangle's box and a band (the default), or App. A's square.
+WINDOWS = ("box", "square")
+
+
+def triangle_cameras(V, F, faces=None, *, screen_pixels=64, window="box"):
     """App. A cameras for many triangles at once.
 
     Parameters
@@ -142,6 +146,10 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
         Which triangles; all of them by default.
     screen_pixels : int, optional
         Screen width and height in pixels (the paper uses 64).
+    window : {"box", "square"}, optional
+        ``"box"`` (default): ``R`` along the longest edge, only the box and its band drawn (module docstring).
+        ``"square"``: Algorithm 1 as written, ``R`` towards the first corner ``a`` and the whole square drawn
+        (``box`` equals ``bounds``).
 
     Returns
     -------
@@ -150,7 +158,7 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
     Raises
     ------
     ValueError
-        On malformed arrays, indices out of range or ``screen_pixels < 1``.
+        On malformed arrays, indices out of range, ``screen_pixels < 1`` or an unknown ``window``.
 
     References
     ----------
@@ -160,6 +168,8 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
     V, F = check_mesh(V, F)
     if int(screen_pixels) != screen_pixels or screen_pixels < 1:
         raise ValueError(f"screen_pixels must be a positive integer, got {screen_pixels}")
+    if window not in WINDOWS:
+        raise ValueError(f"window must be one of {WINDOWS}, got {window!r}")
     faces = np.arange(len(F)) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)
     if faces.size and (faces.min() < 0 or faces.max() >= len(F)):
         raise ValueError("faces refers to triangles outside F")
@@ -170,12 +180,14 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
     with np.errstate(invalid="ignore", divide="ignore"):
         normal = np.cross(b - a, c - a)
         normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-        # R along the longest edge: a triangle's smallest enclosing rectangle has a side on it.
-        edges = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 1],
-                          corners[:, 0] - corners[:, 2]], axis=1)
-        lengths = np.linalg.norm(edges, axis=2)
-        longest = np.argmax(lengths, axis=1)
-        right = edges[np.arange(len(faces)), longest] / lengths[np.arange(len(faces)), longest][:, None]
+        if window == "square":  # Algorithm 1: R points from the barycentre to the first corner
+            right = corners[:, 0] / np.linalg.norm(corners[:, 0], axis=1, keepdims=True)
+        else:  # R along the longest edge: a triangle's smallest enclosing rectangle has a side on it
+            edges = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 1],
+                              corners[:, 0] - corners[:, 2]], axis=1)
+            lengths = np.linalg.norm(edges, axis=2)
+            longest = np.argmax(lengths, axis=1)
+            right = edges[np.arange(len(faces)), longest] / lengths[np.arange(len(faces)), longest][:, None]
         up = np.cross(normal, right)
         up /= np.linalg.norm(up, axis=1, keepdims=True)
     valid = np.isfinite(normal).all(1) & np.isfinite(right).all(1) & np.isfinite(up).all(1)
@@ -185,12 +197,16 @@ def triangle_cameras(V, F, faces=None, *, screen_pixels=64):
     left, rgt = x.min(1), x.max(1)
     bottom, top = y.min(1), y.max(1)
     width, height = rgt - left, top - bottom
-    # R runs along the longest edge, so the box is at least as wide as high: the square grows it upwards and
-    # downwards only, and the drawn box by BOX_MARGIN of its width on each side, at most to the square.
-    grow_y = (width - height) / 2.0
-    bounds = np.stack([left, rgt, bottom - grow_y, top + grow_y], axis=1)
-    band = np.minimum(BOX_MARGIN * width, grow_y)
-    box = np.stack([left, rgt, bottom - band, top + band], axis=1)
+    # The square grows the box along its shorter side (along R the longest edge makes the box at least as wide as
+    # high); the drawn box grows by BOX_MARGIN of its width on each side, at most to the square.
+    grow_x = np.maximum(height - width, 0.0) / 2.0
+    grow_y = np.maximum(width - height, 0.0) / 2.0
+    bounds = np.stack([left - grow_x, rgt + grow_x, bottom - grow_y, top + grow_y], axis=1)
+    if window == "square":
+        box = bounds.copy()
+    else:
+        band = np.minimum(BOX_MARGIN * width, grow_y)
+        box = np.stack([left, rgt, bottom - band, top + band], axis=1)
 
     for field in (centre, normal, right, up, bounds, box):
         field[~valid] = np.nan

@@ -440,7 +440,9 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
         connected to it that reach into the window within half a window side of its plane
         (:func:`.one_ring.window_faces`, at most ``WINDOW_FACE_LIMIT``). ``"one_ring"``: the triangle and
         the faces sharing a vertex with it (welded by position), all of them whatever their distance to the
-        plane, as App. A draws them; one-ring faces outside the window simply cover no pixel. Either way
+        plane, in App. A's whole square window turned towards the first corner (:func:`.camera.triangle_cameras`
+        with ``window="square"``), as App. A draws them; one-ring faces outside the window simply cover no
+        pixel. ``"window"`` draws the triangle's box and its band only (``window="box"``). Either way
         E is GMSD over the covered pixels only (:func:`.gmsd.covered_gmsd`, a project decision, see
         docs/DECISIONS.md), not over the whole screen: with ``"one_ring"`` a sliver's view is mostly
         uncovered, and those pixels do not count.
@@ -469,7 +471,7 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
     if adjacency is None:
         adjacency = one_ring_faces(F, V=V)
     ring_offsets, ring = adjacency
-    cameras = triangle_cameras(V, F, faces, screen_pixels=n)
+    cameras = triangle_cameras(V, F, faces, screen_pixels=n, window="square" if one_ring_only else "box")
     frames = np.stack([cameras.origin, cameras.right, cameras.up, cameras.normal], axis=1)
 
     # Each view is rastered once; every plane samples its own texel grid at the view's pixels, into arrays of
@@ -562,7 +564,8 @@ def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=Non
         raise ValueError(f"face {face} outside 0..{len(F) - 1}")
     one_ring_only = _check_view_faces(view_faces) == "one_ring"
     offsets, ring = one_ring_faces(F, V=V) if adjacency is None else adjacency
-    camera = triangle_cameras(V, F, [face], screen_pixels=screen_pixels)
+    window = "square" if one_ring_only else "box"
+    camera = triangle_cameras(V, F, [face], screen_pixels=screen_pixels, window=window)
     if one_ring_only:
         draw = _one_ring_draw(np.asarray(offsets, np.int64), np.asarray(ring, np.int64), face)
     else:

@@ -521,9 +521,10 @@ def optimize_triangles(V, F, uv, luma, *, epsilon=0.01, evaluations=100, screen_
     progress : callable, optional
         Called as ``progress(done, total)``.
     view_faces : {"window", "one_ring"}, optional
-        Faces each view draws (:func:`.loss.prepare_triangles`): ``"window"`` (default) the one-ring and the
-        faces connected to it that reach into the window; ``"one_ring"`` the triangle and its one-ring only,
-        as App. A. See the module notes for the paper's settings as a whole.
+        Each view (:func:`.loss.prepare_triangles`): ``"window"`` (default) the one-ring and the faces connected
+        to it that reach into the window, drawn in the triangle's box and band; ``"one_ring"`` the triangle and
+        its one-ring only, in App. A's whole square turned towards the first corner. See the module notes for
+        the paper's settings as a whole.
     scheduler : str, optional
         Address of a Dask scheduler (``tcp://host:8786``): the chunks run as tasks of that cluster, every
         worker of it at once (``workers`` is then unused). The cluster's workers need this package and its

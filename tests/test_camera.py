@@ -62,6 +62,24 @@ def test_the_frame_follows_the_longest_edge_whichever_corner_comes_first():
     np.testing.assert_allclose(tall.size, [np.sqrt(73)])
 
 
+def test_square_window_is_algorithm_1_as_written():
+    # a = (2, 0, 0), b = (-1, 1, 0), c = (-1, -1, 0): barycentre at the origin, a - C along +x, normal +z.
+    # Algorithm 1 by hand: R = (1, 0, 0), U = N x R = (0, 1, 0); projections a (2, 0), b (-1, 1), c (-1, -1);
+    # bbox x in [-1, 2] (w = 3), y in [-1, 1] (h = 2); w > h so y grows by (3 - 2) / 2 on both sides, and the
+    # whole square is drawn.
+    V = np.array([[2.0, 0, 0], [-1, 1, 0], [-1, -1, 0]])
+    cam = triangle_cameras(V, F_HAND, window="square")
+    np.testing.assert_allclose(cam.right[0], [1, 0, 0])
+    np.testing.assert_allclose(cam.up[0], [0, 1, 0])
+    np.testing.assert_allclose(cam.bounds[0], [-1, 2, -1.5, 1.5])
+    np.testing.assert_array_equal(cam.box[0], cam.bounds[0])
+    # Taller than wide: stretch y by 4, projections a (2, 0), b (-1, 4), c (-1, -4); x grows by 2.5 each side.
+    tall = triangle_cameras(V * [1, 4, 1], F_HAND, window="square")
+    np.testing.assert_allclose(tall.bounds[0], [-3.5, 4.5, -4, 4])
+    with pytest.raises(ValueError, match="window"):
+        triangle_cameras(V, F_HAND, window="circle")
+
+
 def test_pixel_centres_bottom_row_first():
     cam = triangle_cameras(V_HAND, F_HAND, screen_pixels=4)
     centres = cam.pixel_centres(0)
