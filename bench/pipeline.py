@@ -150,13 +150,23 @@ def _process_memory(pid, page):
     return resident, resident
 
 
-def tree_memory(pid):
-    """Memory of ``pid`` and of its descendants: ``(own, descendants, live descendants)``, ``own`` and
-    ``descendants`` each ``(resident, proportional)`` bytes (zeros once it is gone)."""
-    tree, own, others, count, stack = _children(), (0, 0), (0, 0), 0, [pid]
-    page = os.sysconf("SC_PAGE_SIZE")
+def _tree_pids(pid, tree):
+    """``pid`` and its descendants in ``tree`` (parent pid -> child pids, :func:`_children`), ``pid`` first."""
+    pids, stack = [], [pid]
     while stack:
         current = stack.pop()
+        pids.append(current)
+        stack.extend(tree.get(current, []))
+    return pids
+
+
+def tree_memory(pid, tree=None):
+    """Memory of ``pid`` and of its descendants: ``(own, descendants, live descendants)``, ``own`` and
+    ``descendants`` each ``(resident, proportional)`` bytes (zeros once it is gone). ``tree`` as from
+    :func:`_children`, read now by default."""
+    own, others, count = (0, 0), (0, 0), 0
+    page = os.sysconf("SC_PAGE_SIZE")
+    for current in _tree_pids(pid, _children() if tree is None else tree):
         try:
             memory = _process_memory(current, page)
         except OSError:
@@ -165,23 +175,20 @@ def tree_memory(pid):
             own = memory or (0, 0)
         elif memory is not None:
             others, count = (others[0] + memory[0], others[1] + memory[1]), count + 1
-        stack.extend(tree.get(current, []))
     return own, others, count
 
 
-def tree_cpu_ticks(pid):
+def tree_cpu_ticks(pid, tree=None):
     """Clock ticks of CPU time (user + system) used so far by ``pid`` and by each of its live descendants:
-    ``{pid: ticks}``."""
-    tree, ticks, stack = _children(), {}, [pid]
-    while stack:
-        current = stack.pop()
+    ``{pid: ticks}``. ``tree`` as from :func:`_children`, read now by default."""
+    ticks = {}
+    for current in _tree_pids(pid, _children() if tree is None else tree):
         try:
             with open(f"/proc/{current}/stat") as stat:
                 fields = stat.read().rsplit(")", 1)[1].split()
             ticks[current] = int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of stat)
         except (OSError, IndexError, ValueError):
             pass
-        stack.extend(tree.get(current, []))
     return ticks
 
 
@@ -212,8 +219,9 @@ def measure(tree, path, settings_options):
     # process that ends between two samples loses at most its last 0.1 s)
     busy, last_ticks, last_sample, tick = {}, {}, time.perf_counter(), os.sysconf("SC_CLK_TCK")
     while child.poll() is None:
-        own, others, count = tree_memory(child.pid)
-        ticks, now = tree_cpu_ticks(child.pid), time.perf_counter()
+        tree = _children()  # one walk of /proc per sample, for the memory and the CPU time
+        own, others, count = tree_memory(child.pid, tree)
+        ticks, now = tree_cpu_ticks(child.pid, tree), time.perf_counter()
         entry = busy.setdefault(stage, [0.0, 0.0])
         entry[0] += sum(max(value - last_ticks.get(pid, 0), 0) for pid, value in ticks.items()) / tick
         entry[1] += now - last_sample

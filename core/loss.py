@@ -72,6 +72,9 @@ __all__ = ["VIEW_FACES", "TriangleProblem", "TriangleBatch", "StackProblem", "St
 #: reach into the window (:func:`.one_ring.window_faces`); ``"one_ring"`` the triangle and the faces sharing a
 #: vertex with it (:func:`.one_ring.one_ring_faces`), as Sec. 4.1 (after Eq. 6) and App. A describe.
 VIEW_FACES = ("window", "one_ring")
+# The camera window each of them is drawn in (:func:`.camera.triangle_cameras`): App. A's view as written draws
+# its whole square.
+_CAMERA_WINDOW = {"window": "box", "one_ring": "square"}
 
 
 def _check_inputs(V, F, uv):
@@ -463,7 +466,8 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
         raise ValueError(f"screen_pixels must be an even integer >= 2, got {screen_pixels}")
     if not ridge > 0:
         raise ValueError(f"ridge must be positive, got {ridge}")
-    one_ring_only = _check_view_faces(view_faces) == "one_ring"
+    view_faces = _check_view_faces(view_faces)
+    one_ring_only = view_faces == "one_ring"
     n = int(screen_pixels)
     faces = np.arange(len(F), dtype=np.int64) if faces is None else np.asarray(faces, dtype=np.int64).reshape(-1)
     if faces.size and (faces.min() < 0 or faces.max() >= len(F)):
@@ -471,7 +475,7 @@ def prepare_triangles(V, F, uv, luma, faces=None, *, screen_pixels=64, adjacency
     if adjacency is None:
         adjacency = one_ring_faces(F, V=V)
     ring_offsets, ring = adjacency
-    cameras = triangle_cameras(V, F, faces, screen_pixels=n, window="square" if one_ring_only else "box")
+    cameras = triangle_cameras(V, F, faces, screen_pixels=n, window=_CAMERA_WINDOW[view_faces])
     frames = np.stack([cameras.origin, cameras.right, cameras.up, cameras.normal], axis=1)
 
     # Each view is rastered once; every plane samples its own texel grid at the view's pixels, into arrays of
@@ -562,10 +566,10 @@ def render_reference(V, F, uv, texture, face, *, screen_pixels=64, adjacency=Non
     face = int(face)
     if not 0 <= face < len(F):
         raise ValueError(f"face {face} outside 0..{len(F) - 1}")
-    one_ring_only = _check_view_faces(view_faces) == "one_ring"
+    view_faces = _check_view_faces(view_faces)
+    one_ring_only = view_faces == "one_ring"
     offsets, ring = one_ring_faces(F, V=V) if adjacency is None else adjacency
-    window = "square" if one_ring_only else "box"
-    camera = triangle_cameras(V, F, [face], screen_pixels=screen_pixels, window=window)
+    camera = triangle_cameras(V, F, [face], screen_pixels=screen_pixels, window=_CAMERA_WINDOW[view_faces])
     if one_ring_only:
         draw = _one_ring_draw(np.asarray(offsets, np.int64), np.asarray(ring, np.int64), face)
     else:

@@ -64,7 +64,7 @@ def _rasterize_kernel(V, F, draw, origin, right, up, normal, bounds, box, n):
     xs = np.empty(3)
     ys = np.empty(3)
     hs = np.empty(3)
-    # Pixels whose centre lies in the triangle's box.
+    # Pixels whose centre lies in the drawn box (the camera's ``box``).
     box_j0 = max(int(np.ceil((box[0] - left) / step - 0.5)), 0)
     box_j1 = min(int(np.floor((box[1] - left) / step - 0.5)), n - 1)
     box_i0 = max(int(np.ceil((box[2] - bottom) / step - 0.5)), 0)
@@ -159,11 +159,11 @@ def _rasterize_reference(V, F, draw, camera):
 def rasterize(V, F, draw, camera):
     """Ray-cast the pixel centres of one orthographic camera against a set of triangles.
 
-    Only pixels whose centre lies in the camera's ``box`` (the triangle's own box, :mod:`.camera`) are drawn.
-    Each of them sees the drawn triangle nearest to the eye (largest height along ``N``) among those whose hit
-    point lies between the near and far planes of Algorithm 1; both faces of a triangle are visible (no
-    back-face culling, like Blender's workbench default). A pixel centre on a shared edge goes to one of the
-    two triangles.
+    Only pixels whose centre lies in the camera's ``box`` (the drawn part of the window, :mod:`.camera`) are
+    drawn. Each of them sees the drawn triangle nearest to the eye (largest height along ``N``) among those
+    whose hit point lies between the near and far planes of Algorithm 1; both faces of a triangle are visible
+    (no back-face culling, like Blender's workbench default). A pixel centre on a shared edge goes to one of
+    the two triangles.
 
     Parameters
     ----------
