@@ -37,6 +37,7 @@ def _import_package_from_file():
 if __name__ == "__main__" and not __package__:  # blender -b FILE --python cli.py -- ARGS
     sys.exit(_import_package_from_file().main(blender_argv(sys.argv)))
 
+from .core.progress import wait_for_threads  # noqa: E402
 from .core.settings import COST_MEASURES, COST_ROLES, OptimizeSettings  # noqa: E402  (after the script bootstrap above)
 
 MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj")
@@ -276,7 +277,20 @@ def _write_traceback(error):
 
 
 def main(argv=None):
-    """Run the CLI; returns the process exit code."""
+    """Run the CLI; returns the process exit code.
+
+    Before it returns, the stages' threads that a cancel or an error left running finish (they stop at their
+    next check or are bounded): a daemon thread still in numpy while the interpreter shuts down makes the
+    process exit 120 instead of this code. A second Ctrl-C or SIGTERM meanwhile stops waiting."""
+    code = _main(argv)
+    try:
+        wait_for_threads()
+    except KeyboardInterrupt:
+        return 130
+    return code
+
+
+def _main(argv):
     import signal
 
     argv = sys.argv[1:] if argv is None else list(argv)

@@ -2,7 +2,7 @@
 import threading
 import time
 
-__all__ = ["run_generator", "report_while_waiting", "relay_stage", "InThread", "RunProgress",
+__all__ = ["run_generator", "report_while_waiting", "relay_stage", "InThread", "wait_for_threads", "RunProgress",
            "format_seconds"]
 
 
@@ -39,6 +39,29 @@ def report_while_waiting(waiting, progress):
         yield progress
 
 
+# The InThreads whose function has not returned yet (:func:`wait_for_threads`).
+_RUNNING = set()
+_RUNNING_LOCK = threading.Lock()
+
+
+def wait_for_threads(timeout=None):
+    """Block until the function of every :class:`InThread` started so far has returned, or ``timeout`` seconds
+    have passed (None: no limit); whether all of them have.
+
+    A process calls it before it exits, after closing its stages' generators (see :class:`InThread`'s notes).
+    """
+    deadline = None if timeout is None else time.monotonic() + float(timeout)
+    while True:
+        with _RUNNING_LOCK:
+            running = next(iter(_RUNNING), None)
+        if running is None:
+            return True
+        left = None if deadline is None else deadline - time.monotonic()
+        if left is not None and left <= 0:
+            return False
+        running._returned.wait(left)
+
+
 class InThread:
     """``function(*args)`` running in a daemon thread, so that a generator can hand control back while it runs.
 
@@ -53,35 +76,59 @@ class InThread:
         Its arguments.
     interval : float, optional
         Seconds :meth:`wait` waits between two yields.
+
+    Notes
+    -----
+    A generator closed while its function runs (Esc in Blender, a cancelled command line run) does not wait for
+    it: the function runs on and its result is dropped, and the functions given here are bounded (a second or
+    two) or stop at the next check of a flag their generator sets when closed. Blender's interface stays free
+    meanwhile; a process that is about to exit calls :func:`wait_for_threads` first, because a daemon thread
+    still running numpy or scipy while the interpreter shuts down breaks the shutdown (Python 3.11 then fails to
+    flush standard output and the process exits 120 instead of its own code).
     """
 
     def __init__(self, function, *args, interval=0.1):
         self._value = self._error = None
         self._interval = float(interval)
+        self._returned = threading.Event()
+        with _RUNNING_LOCK:
+            _RUNNING.add(self)
         self._thread = threading.Thread(target=self._run, args=(function, args), daemon=True,
                                         name="perceptual_uv-worker")
-        self._thread.start()
+        try:
+            self._thread.start()
+        except BaseException:
+            with _RUNNING_LOCK:
+                _RUNNING.discard(self)
+            raise
 
     def _run(self, function, args):
         try:
             self._value = function(*args)
         except BaseException as error:  # noqa: BLE001  raised again in the generator that waits for it
             self._error = error
+        finally:
+            with _RUNNING_LOCK:
+                _RUNNING.discard(self)
+            self._returned.set()
 
     def wait(self):
         """Generator: yield None every ``interval`` seconds until the function has returned; return its value,
-        or raise its exception."""
-        self._thread.join(self._interval)
-        while self._thread.is_alive():
+        or raise its exception.
+
+        It waits on an event the thread sets, not on ``Thread.join``: a signal handler's exception (Ctrl-C, or
+        the command line's SIGTERM) raised inside ``Thread.join(timeout)`` makes Python 3.11 release the lock
+        that the running thread holds and mark the thread stopped while it runs on, after which nothing can wait
+        for it (:func:`wait_for_threads`)."""
+        while not self._returned.wait(self._interval):
             yield None
-            self._thread.join(self._interval)
         if self._error is not None:
             raise self._error
         return self._value
 
     def join(self):
         """Block until the function has returned; its value, or None if it raised."""
-        self._thread.join()
+        self._returned.wait()
         return self._value
 
 

@@ -119,3 +119,51 @@ def test_report_while_waiting_yields_the_progress_for_each_wait_and_returns_the_
     steps = []
     assert run_generator(report_while_waiting(waiting(), ("read", 2)), lambda *step: steps.append(step)) == 7
     assert steps == [("read", 2), ("read", 2)]  # run_generator unpacks each yielded item
+
+
+def test_a_closed_waiter_leaves_its_function_running_and_wait_for_threads_waits_for_it():
+    import threading
+
+    from perceptual_uv.core.progress import InThread, wait_for_threads
+
+    release = threading.Event()
+    running = InThread(release.wait, 10.0, interval=0.01)
+    waiting = running.wait()
+    assert next(waiting) is None  # the function blocks: the generator hands control back
+    waiting.close()  # a cancel: nothing waits for the function here
+    assert not wait_for_threads(timeout=0.05)
+    release.set()
+    assert wait_for_threads(timeout=10.0)
+    assert running.join() is True  # Event.wait's value
+
+
+def test_a_signal_raised_while_waiting_does_not_mark_the_thread_finished():
+    import signal
+    import threading
+
+    from perceptual_uv.core.progress import InThread, wait_for_threads
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers run in the main thread only")
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    release = threading.Event()
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    try:
+        running = InThread(release.wait, 10.0, interval=5.0)  # the main thread sits in one long wait
+        signal.setitimer(signal.ITIMER_REAL, 0.05)
+        with pytest.raises(KeyboardInterrupt):
+            for _ in running.wait():
+                pass
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    # Waiting in Thread.join(timeout) here, Python 3.11 marked the running thread stopped: nothing could wait for it.
+    assert running._thread.is_alive()
+    assert not wait_for_threads(timeout=0.05)
+    release.set()
+    assert wait_for_threads(timeout=10.0)
+    running._thread.join(10.0)
+    assert not running._thread.is_alive()
