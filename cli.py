@@ -245,6 +245,10 @@ def _run(args):
     return evaluate_file(args)
 
 
+# Longest wait for the stages' threads before the process exits (one mesh-wise iteration, a worker pool's start or
+# an image's encoding take seconds at most): a thread that hangs must not keep a cancelled run from exiting.
+THREADS_WAIT_S = 60.0
+
 # Set by SIGTERM/SIGINT: a KeyboardInterrupt raised while numba compiles a kernel can be swallowed by the
 # compiler, so the run also checks this between steps (``args.interrupted``) and cancels there.
 _INTERRUPTED = threading.Event()
@@ -281,10 +285,11 @@ def main(argv=None):
 
     Before it returns, the stages' threads that a cancel or an error left running finish (they stop at their
     next check or are bounded): a daemon thread still in numpy while the interpreter shuts down makes the
-    process exit 120 instead of this code. A second Ctrl-C or SIGTERM meanwhile stops waiting."""
+    process exit 120 instead of this code. A second Ctrl-C or SIGTERM meanwhile, or :data:`THREADS_WAIT_S`,
+    stops waiting."""
     code = _main(argv)
     try:
-        wait_for_threads()
+        wait_for_threads(timeout=THREADS_WAIT_S)
     except KeyboardInterrupt:
         return 130
     return code
