@@ -40,7 +40,6 @@ which sees the base colour only, it would be the input, so it is shaded-only.
 """
 
 import argparse
-import ast
 import hashlib
 import json
 import pathlib
@@ -51,6 +50,8 @@ import numpy as np
 
 from .compare_report import (SAVING_REFERENCE_COST, model_markdown, plot_curves, render_crops, wins,
                              write_summary)
+from .source_hash import PACKAGE as _PACKAGE
+from .source_hash import MODEL_SUFFIXES, code_hash, model_hash
 
 METHODS = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSP", "SSPOP", "ours", "ours_luma",
            "ours_rotation", "ours_common", "ours_identity", "paper", "ours_no_texel_floor", "ours_no_signal_blend",
@@ -59,7 +60,6 @@ SHADED_ONLY = ("downscale",)
 """Methods measured only with ``--shaded`` (see the module docstring)."""
 SIZING = {"downscale": "memory"}
 """How ``bridge.evaluate_shaded`` sizes each method's maps (``texels`` otherwise)."""
-MODEL_SUFFIXES = (".glb", ".gltf", ".obj", ".blend")
 OURS_VARIANTS = {"ours": {}, "ours_luma": {}, "ours_common": {"formulation": "common"},
                  "ours_identity": {"weights": "identity"}, "ours_rotation": {"rotation_scale": 1.0},
                  "ours_no_texel_floor": {"min_texels": 0.0}, "ours_no_signal_blend": {"signal_weight": 0.0},
@@ -119,8 +119,6 @@ SHADED_SOURCES = ("bridge.evaluate_shaded",)
 """What every method's result depends on in addition with ``--shaded`` (the whole-material bake, the copies)."""
 KEPT_MAPS = ("ours",)
 """Methods whose UV map is cached with their result: the crops and the pixel saving need it."""
-_HUBS = ("bridge.baselines", "bench.compare")
-_PACKAGE = pathlib.Path(__file__).resolve().parent.parent
 
 
 def _models(paths):
@@ -219,66 +217,6 @@ class UVMaps:
                 obj.data.uv_layers.remove(obj.data.uv_layers[name])
 
 
-def _module_file(module, package=_PACKAGE):
-    return package.joinpath(*module.split(".")).with_suffix(".py")
-
-
-def _imported_modules(module, package=_PACKAGE):
-    """Modules of this package that ``module`` imports anywhere in its file (also inside functions)."""
-    parts = module.split(".")
-    found = set()
-    for node in ast.walk(ast.parse(_module_file(module, package).read_text())):
-        names = []
-        if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = parts[:len(parts) - node.level]
-            elif node.module and node.module.split(".")[0] == "perceptual_uv":
-                base = []
-            else:
-                continue
-            stem = [p for p in (node.module or "").split(".") if p and p != "perceptual_uv"] if not node.level \
-                else [p for p in (node.module or "").split(".") if p]
-            names = [".".join(base + stem)] + [".".join(base + stem + [a.name]) for a in node.names]
-        elif isinstance(node, ast.Import):
-            names = [a.name.split(".", 1)[1] for a in node.names if a.name.startswith("perceptual_uv.")]
-        found.update(n for n in names if n and _module_file(n, package).is_file())
-    return found
-
-
-def _definition_source(module, name, package=_PACKAGE):
-    """The source of the top-level definition or assignment ``name`` (``Class.method`` too) in ``module``."""
-    text = _module_file(module, package).read_text()
-    body = ast.parse(text).body
-    *outer, last = name.split(".")
-    for part in outer:
-        body = next(n.body for n in body if isinstance(n, ast.ClassDef) and n.name == part)
-    for node in body:
-        targets = [t.id for t in getattr(node, "targets", []) if isinstance(t, ast.Name)]
-        if getattr(node, "name", None) == last or last in targets:
-            return ast.get_source_segment(text, node)
-    raise KeyError(f"{module} has no definition {name}")
-
-
-def code_hash(sources, package=_PACKAGE):
-    """SHA-256 of the source ``sources`` name: modules with their imports (not through :data:`_HUBS`), and
-    ``module:name`` definitions (see :data:`METHOD_SOURCES`)."""
-    files, todo, texts = set(), [], []
-    for source in sources:
-        if ":" in source:
-            module, name = source.split(":")
-            texts.append(f"{source}\n{_definition_source(module, name, package)}")
-        else:
-            todo.append((source, True))
-    while todo:
-        module, named = todo.pop()
-        if module in files or (module in _HUBS and not named):
-            continue
-        files.add(module)
-        todo.extend((m, False) for m in _imported_modules(module, package))
-    texts += [f"{module}\n{_module_file(module, package).read_text()}" for module in sorted(files)]
-    return hashlib.sha256("\n".join(sorted(texts)).encode()).hexdigest()
-
-
 def method_sources(method, shaded=False):
     """The sources a method's result depends on (:data:`METHOD_SOURCES` and :data:`EVALUATION_SOURCES`, and
     :data:`SHADED_SOURCES` when ``shaded``)."""
@@ -289,18 +227,6 @@ def method_sources(method, shaded=False):
                        for folder in ("core", "bridge") for f in (_PACKAGE / folder).glob("*.py"))
         return tuple(every) + ("bench.compare",)
     return METHOD_SOURCES[method] + EVALUATION_SOURCES + (SHADED_SOURCES if shaded else ())
-
-
-def model_hash(path):
-    """SHA-256 of a model file and of every other file in its folder (textures, buffers), names included."""
-    path = pathlib.Path(path)
-    digest = hashlib.sha256()
-    for file in sorted(f for f in path.parent.rglob("*") if f.is_file()):
-        if file.suffix.lower() in MODEL_SUFFIXES and file != path:
-            continue
-        digest.update(str(file.relative_to(path.parent)).encode())
-        digest.update(file.read_bytes())
-    return digest.hexdigest()
 
 
 def method_settings(method, *, costs, screen, evaluations, epsilon, shaded=False, seed=0):

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from perceptual_uv.bench import compare
-from perceptual_uv.bench.compare import ResultCache, code_hash, method_key, method_settings, method_sources
+from perceptual_uv.bench.compare import ResultCache, method_key, method_settings, method_sources
+from perceptual_uv.bench.source_hash import code_hash
 
 PACKAGE = pathlib.Path(compare.__file__).resolve().parent.parent
 
