@@ -118,8 +118,8 @@ class InThread:
 
         It waits on an event the thread sets, not on ``Thread.join``: a signal handler's exception (Ctrl-C, or
         the command line's SIGTERM) raised inside ``Thread.join(timeout)`` makes Python 3.11 release the lock
-        that the running thread holds and mark the thread stopped while it runs on, after which nothing can wait
-        for it (:func:`wait_for_threads`)."""
+        that the running thread holds and mark the thread stopped while it runs on, after which joining it
+        returns at once; the event still tells when the function returns (:func:`wait_for_threads`)."""
         while not self._returned.wait(self._interval):
             yield None
         if self._error is not None:
