@@ -59,7 +59,7 @@ def _definition_source(module, name, package=PACKAGE):
 
 def code_hash(sources, package=PACKAGE):
     """SHA-256 of the source ``sources`` name: modules with their imports (not through :data:`HUBS`), and
-    ``module:name`` definitions (see :data:`METHOD_SOURCES`)."""
+    ``module:name`` definitions (see :data:`.compare.METHOD_SOURCES`)."""
     files, todo, texts = set(), [], []
     for source in sources:
         if ":" in source:
