@@ -77,13 +77,13 @@ def code_hash(sources, package=PACKAGE):
     return hashlib.sha256("\n".join(sorted(texts)).encode()).hexdigest()
 
 
-def model_hash(path, *, model_suffixes=MODEL_SUFFIXES):
+def model_hash(path):
     """SHA-256 of a model file and of every other file in its folder (textures, buffers), names included; the
-    folder's other model files (``model_suffixes``) are left out."""
+    folder's other model files (:data:`MODEL_SUFFIXES`) are left out."""
     path = pathlib.Path(path)
     digest = hashlib.sha256()
     for file in sorted(f for f in path.parent.rglob("*") if f.is_file()):
-        if file.suffix.lower() in model_suffixes and file != path:
+        if file.suffix.lower() in MODEL_SUFFIXES and file != path:
             continue
         digest.update(str(file.relative_to(path.parent)).encode())
         digest.update(file.read_bytes())
