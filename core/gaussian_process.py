@@ -6,7 +6,8 @@ distance. The Bayesian optimizer refits and queries it every few evaluations, so
 - the GP works on standardized targets with the signal variance profiled out of the marginal likelihood, so the
   Cholesky factor ``L`` of ``C + eta I`` depends on inputs only;
 - hyper-parameters (log length scales, log noise ``eta``) are fitted by L-BFGS-B on the exact gradient of the
-  profiled log marginal likelihood, only when the optimizer asks (a few points of a run);
+  profiled log marginal likelihood, only when the optimizer asks (a few points of a run), with scipy's routine
+  driven directly (:func:`_minimize_lbfgsb`: ``scipy.optimize.minimize``'s iterates without its overhead);
 - between fits every new observation extends ``L`` by one row (forward substitution, O(n^2));
 - the posterior at candidates ``C`` is read off the rows of ``V = L^-1 K(X, C)``, appended one per observation
   (O(n c)): the standardized mean is ``V^T w`` with ``w = L^-1 y``, the variance ``signal (1 - |V[:, j]|^2)``;
@@ -20,7 +21,9 @@ Sun et al. 2022, Sec. 4.1.2; [CCAM18] in the paper's bibliography.
 import math
 
 import numpy as np
-import scipy.optimize
+# The reverse-communication L-BFGS-B routine that scipy.optimize.minimize drives (private; scipy is pinned, and
+# tests/test_bayesopt.py checks that _minimize_lbfgsb gives minimize's iterates bit for bit).
+from scipy.optimize import _lbfgsb
 
 from ._jit import njit
 
@@ -213,6 +216,65 @@ def _forward_substitute_numba(L, b):
 # The Gaussian process state.
 
 
+def _minimize_lbfgsb(function, start, low, high, *, max_iterations, corrections=10, ftol=2.2204460492503131e-09,
+                     gtol=1e-5, max_line_steps=20):
+    """Minimize ``function(x) -> (value, gradient)`` over the box ``[low, high]`` by L-BFGS-B; returns ``x``.
+
+    The loop of ``scipy.optimize.minimize(function, start, jac=True, method="L-BFGS-B", bounds=...,
+    options={"maxiter": max_iterations})`` with scipy's defaults for the other options (``corrections`` is its
+    ``maxcor``, ``max_line_steps`` its ``maxls``), driving the same routine, so the iterates are the same bit for
+    bit; without the per-iteration bookkeeping of ``minimize`` (its memoized function object and a result object
+    per iteration), which outweighs the likelihood itself on the small fits here. The function-evaluation
+    cap of ``minimize`` (15000) is left out: ``max_iterations`` iterations of at most ``max_line_steps`` steps
+    each stay far below it.
+
+    Parameters
+    ----------
+    function : callable
+        ``function(x)`` for ``x`` of shape (n,) returns the value and the gradient (n,).
+    start : (n,) array_like
+        Starting point, clipped into the box.
+    low, high : (n,) array_like
+        Finite bounds.
+    max_iterations : int
+        Iterations (accepted line searches) at most.
+
+    Returns
+    -------
+    (n,) ndarray of float64
+    """
+    low = np.ascontiguousarray(low, dtype=np.float64)
+    high = np.ascontiguousarray(high, dtype=np.float64)
+    x = np.clip(np.asarray(start, dtype=np.float64).ravel(), low, high)
+    n = x.shape[0]
+    bounded_both_sides = np.full(n, 2, dtype=np.int32)
+    f = np.array(0.0)
+    g = np.zeros(n)
+    work = np.zeros(2 * corrections * n + 5 * n + 11 * corrections * corrections + 8 * corrections)
+    int_work = np.zeros(3 * n, dtype=np.int32)
+    task = np.zeros(2, dtype=np.int32)
+    line_task = np.zeros(2, dtype=np.int32)
+    lsave = np.zeros(4, dtype=np.int32)
+    isave = np.zeros(44, dtype=np.int32)
+    dsave = np.zeros(29)
+    factr = ftol / np.finfo(float).eps
+    iterations = 0
+    while True:
+        g = np.asarray(g, dtype=np.float64).copy()
+        _lbfgsb.setulb(corrections, x, low, high, bounded_both_sides, f, g, factr, gtol, work, int_work, task,
+                       lsave, isave, dsave, max_line_steps, line_task)
+        if task[0] == 3:  # evaluate at x
+            value, gradient = function(x.copy())
+            f = float(value)
+            g = np.atleast_1d(gradient)
+        elif task[0] == 1:  # a new iterate
+            iterations += 1
+            if iterations >= max_iterations:
+                task[0], task[1] = 5, 504  # stop: the iteration limit
+        else:
+            return x
+
+
 class _GaussianProcess:
     """GP on the unit cube with incremental Cholesky updates (see the module docstring)."""
 
@@ -273,11 +335,10 @@ class _GaussianProcess:
             return -value, -gradient
 
         start = np.append(self.log_length, self.log_noise)
-        bounds = [_LOG_LENGTH_BOUNDS] * self.dims + [_LOG_NOISE_BOUNDS]
+        bounds = np.array([_LOG_LENGTH_BOUNDS] * self.dims + [_LOG_NOISE_BOUNDS])
         try:
-            found = scipy.optimize.minimize(negative, start, jac=True, method="L-BFGS-B", bounds=bounds,
-                                            options={"maxiter": max_iterations})
-            theta = found.x if np.all(np.isfinite(found.x)) else start
+            found = _minimize_lbfgsb(negative, start, bounds[:, 0], bounds[:, 1], max_iterations=max_iterations)
+            theta = found if np.all(np.isfinite(found)) else start
         except np.linalg.LinAlgError:
             theta = start
         self.log_length = theta[:-1].copy()

@@ -3,6 +3,7 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
+import scipy.optimize
 import scipy.special
 
 from perceptual_uv.core import bayesopt, gaussian_process
@@ -165,6 +166,28 @@ def test_log_likelihood_numba_matches_reference_and_finite_differences():
         numeric = (gaussian_process._log_likelihood_numpy(X, y, up[:4], up[4], periodic)[0]
                    - gaussian_process._log_likelihood_numpy(X, y, down[:4], down[4], periodic)[0]) / (2 * h)
         assert gradient[k] == pytest.approx(numeric, rel=1e-5, abs=1e-7)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_minimize_lbfgsb_gives_scipy_minimize_iterates_bit_for_bit(seed):
+    # The GP's fit drives scipy's L-BFGS-B routine itself; scipy.optimize.minimize is the reference.
+    rng = np.random.default_rng(seed)
+    X, _, _, periodic = _random_problem(100 + seed, n=int(rng.integers(6, 50)))
+    y = np.sin(6 * X[:, 0]) + X[:, 1] ** 2 + 0.1 * rng.standard_normal(len(X))
+    y = (y - y.mean()) / y.std()
+
+    def negative(theta):
+        value, gradient = gaussian_process._log_likelihood_numba(X, y, theta[:-1], theta[-1], periodic)
+        return -value, -gradient
+
+    bounds = np.array([gaussian_process._LOG_LENGTH_BOUNDS] * 4 + [gaussian_process._LOG_NOISE_BOUNDS])
+    start = rng.uniform(bounds[:, 0] - 0.5, bounds[:, 1] + 0.5)  # partly outside: both clip it
+    for iterations in (1, 3, 20):
+        expected = scipy.optimize.minimize(negative, start, jac=True, method="L-BFGS-B", bounds=bounds.tolist(),
+                                           options={"maxiter": iterations}).x
+        found = gaussian_process._minimize_lbfgsb(negative, start, bounds[:, 0], bounds[:, 1],
+                                                  max_iterations=iterations)
+        np.testing.assert_array_equal(found, expected)
 
 
 def test_gaussian_process_incremental_factor_equals_refactor_after_fit():
