@@ -38,9 +38,9 @@ if __name__ == "__main__" and not __package__:  # blender -b FILE --python cli.p
     sys.exit(_import_package_from_file().main(blender_argv(sys.argv)))
 
 from .core.progress import wait_for_threads  # noqa: E402
-from .core.settings import COST_MEASURES, COST_ROLES, OptimizeSettings  # noqa: E402  (after the script bootstrap above)
+# After the script bootstrap above:
+from .core.settings import COST_MEASURES, COST_ROLES, MODEL_SUFFIXES, OptimizeSettings  # noqa: E402
 
-MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj")
 OUTPUT_SUFFIXES = (".blend", ".glb")
 
 

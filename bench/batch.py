@@ -31,8 +31,9 @@ import sys
 import tempfile
 import time
 
+from perceptual_uv.core.settings import MODEL_SUFFIXES
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-MODEL_SUFFIXES = (".gltf", ".glb", ".obj", ".blend")
 
 
 def model_file(folder):

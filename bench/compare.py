@@ -48,10 +48,11 @@ import time
 
 import numpy as np
 
+from ..core.settings import MODEL_SUFFIXES
 from .compare_report import (SAVING_REFERENCE_COST, model_markdown, plot_curves, render_crops, wins,
                              write_summary)
 from .source_hash import PACKAGE as _PACKAGE
-from .source_hash import MODEL_SUFFIXES, code_hash, model_hash
+from .source_hash import code_hash, model_hash
 
 METHODS = ("input", "repacked", "ANGLE_BASED", "CONFORMAL", "MINIMUM_STRETCH", "SSP", "SSPOP", "ours", "ours_luma",
            "ours_rotation", "ours_common", "ours_identity", "paper", "ours_no_texel_floor", "ours_no_signal_blend",

@@ -28,18 +28,8 @@ from perceptual_uv.core.meshwise import solve_meshwise  # noqa: E402
 from perceptual_uv.core.meshwise_local import fit_energy  # noqa: E402
 from perceptual_uv.core.overlap import count_overlaps  # noqa: E402
 
-MODEL_SUFFIXES = (".gltf", ".glb", ".obj", ".blend")
-
-
-def model_file(folder):
-    folder = pathlib.Path(folder)
-    if folder.is_file():
-        return folder
-    for suffix in MODEL_SUFFIXES:
-        found = sorted(folder.glob(f"*{suffix}"))
-        if found:
-            return found[0]
-    raise SystemExit(f"no model file ({', '.join(MODEL_SUFFIXES)}) in {folder}")
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from pipeline import model_file  # noqa: E402  (bench/pipeline.py, next to this file)
 
 
 def random_box_targets(m, seed):

@@ -40,8 +40,9 @@ import sys
 import tempfile
 import time
 
+from perceptual_uv.core.settings import MODEL_SUFFIXES
+
 REPO = pathlib.Path(__file__).resolve().parent.parent
-MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj")
 WARMUP_MODEL = REPO / "tests" / "data" / "spot" / "spot_triangulated.obj"
 STAGES = ("read", "triangle", "mesh", "pack", "bake", "total")
 

@@ -8,13 +8,14 @@ import ast
 import hashlib
 import pathlib
 
-__all__ = ["PACKAGE", "HUBS", "MODEL_SUFFIXES", "code_hash", "model_hash"]
+from ..core.settings import MODEL_SUFFIXES
+
+__all__ = ["PACKAGE", "HUBS", "code_hash", "model_hash"]
 
 PACKAGE = pathlib.Path(__file__).resolve().parent.parent
 """The package's folder (its modules are named relative to it, e.g. ``core.ssp``)."""
 HUBS = ("bridge.baselines", "bench.compare")
 """Modules that import every method: followed only when named, never through another module's imports."""
-MODEL_SUFFIXES = (".glb", ".gltf", ".obj", ".blend")
 
 
 def _module_file(module, package=PACKAGE):
@@ -79,7 +80,7 @@ def code_hash(sources, package=PACKAGE):
 
 def model_hash(path):
     """SHA-256 of a model file and of every other file in its folder (textures, buffers), names included; the
-    folder's other model files (:data:`MODEL_SUFFIXES`) are left out."""
+    folder's other model files (``core.settings.MODEL_SUFFIXES``) are left out."""
     path = pathlib.Path(path)
     digest = hashlib.sha256()
     for file in sorted(f for f in path.parent.rglob("*") if f.is_file()):

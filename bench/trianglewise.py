@@ -23,19 +23,17 @@ import time
 
 import numpy as np
 
-MODEL_SUFFIXES = (".obj", ".gltf", ".glb", ".blend")
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from pipeline import model_file as find_model_file  # noqa: E402  (bench/pipeline.py, next to this file)
 
 
 def load_model(directory):
     """``(V, F, uv, texture)`` of the model file in ``directory`` (read through Blender's importers)."""
     from perceptual_uv.bridge.mesh_io import load_textured_mesh
 
-    directory = pathlib.Path(directory)
-    files = sorted(p for p in directory.iterdir() if p.suffix.lower() in MODEL_SUFFIXES)
-    if not files:
-        raise SystemExit(f"no model file ({', '.join(MODEL_SUFFIXES)}) in {directory}")
-    mesh, texture, _ = load_textured_mesh(files[0])
-    return mesh.V, mesh.F, mesh.uv, np.asarray(texture[..., :3], dtype=np.float64), files[0].name
+    path = find_model_file(directory)
+    mesh, texture, _ = load_textured_mesh(path)
+    return mesh.V, mesh.F, mesh.uv, np.asarray(texture[..., :3], dtype=np.float64), path.name
 
 
 def _area(result):

@@ -10,12 +10,11 @@ import bpy
 import numpy as np
 
 from ..core.mesh import MeshArrays, concatenate_meshes
+from ..core.settings import MODEL_SUFFIXES
 from .material import base_color_image_node
 
-__all__ = ["SUPPORTED_SUFFIXES", "import_model", "read_mesh", "read_image", "load_textured_mesh",
+__all__ = ["import_model", "read_mesh", "read_image", "load_textured_mesh",
            "write_uv_layer", "image_triangle_mask"]
-
-SUPPORTED_SUFFIXES = (".blend", ".obj", ".gltf", ".glb")
 
 
 def import_model(path):
@@ -39,9 +38,9 @@ def import_model(path):
     """
     path = pathlib.Path(path).expanduser().resolve()
     suffix = path.suffix.lower()
-    if suffix not in SUPPORTED_SUFFIXES:
+    if suffix not in MODEL_SUFFIXES:
         raise ValueError(f"unsupported model type '{path.suffix}' for {path}; use one of "
-                         f"{', '.join(SUPPORTED_SUFFIXES)}")
+                         f"{', '.join(MODEL_SUFFIXES)}")
     if not path.is_file():
         raise ValueError(f"model file not found: {path}")
     try:

@@ -8,9 +8,10 @@ import os
 import pathlib
 import urllib.parse
 
-__all__ = ["MODEL_SUFFIXES", "Asset", "find_models", "external_files", "content_key", "plan_assets"]
+from ..core.settings import MODEL_SUFFIXES
 
-MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj")
+__all__ = ["Asset", "find_models", "external_files", "content_key", "plan_assets"]
+
 _GLOB_CHARS = frozenset("*?[")
 _CHUNK = 1 << 20
 
