@@ -40,8 +40,6 @@ import sys
 import tempfile
 import time
 
-from perceptual_uv.core.settings import MODEL_SUFFIXES
-
 REPO = pathlib.Path(__file__).resolve().parent.parent
 WARMUP_MODEL = REPO / "tests" / "data" / "spot" / "spot_triangulated.obj"
 STAGES = ("read", "triangle", "mesh", "pack", "bake", "total")
@@ -49,6 +47,9 @@ STAGES = ("read", "triangle", "mesh", "pack", "bake", "total")
 
 def model_file(path):
     """The model file ``path`` names: itself, or the first model file (by name) in the folder."""
+    # Imported here: a run of another revision (--against) imports this script with that revision's package.
+    from perceptual_uv.core.settings import MODEL_SUFFIXES
+
     path = pathlib.Path(path)
     if path.is_file():
         return path
