@@ -89,7 +89,8 @@ material whose only varying map is the base colour it is ours, and ours' triangl
 
 _PACKED = ("bridge.pack", "core.stacks", "bridge.baselines:_stacks", "bridge.baselines:_face_stack",
            "bridge.baselines:_check", "bridge.baselines:_pack", "bridge.baselines:_write",
-           "bridge.baselines:_texture", "bridge.baselines:_texture_image", "bridge.baselines:PACK_MARGIN_PIXELS")
+           "bridge.baselines:_texture", "bridge.read_objects:source_image", "bridge.material",
+           "bridge.baselines:PACK_MARGIN_PIXELS")
 _FINISHED = _PACKED + ("core.charts", "core.overlap", "core.meshwise", "core.chart_orientation",
                        "core.chartfit:finish_charts", "bridge.baselines:_finished", "bridge.baselines:_post_counts")
 _OURS = _FINISHED + ("core.chartfit", "core.trianglewise", "core.loss", "core.textured", "core.ssp",

@@ -40,7 +40,7 @@ from ..core.trianglewise_result import MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
 from .evaluate import mesh_arrays, reference_resolution
-from .material import base_color_image_node
+from .read_objects import source_image
 from .material_copy import loss_planes_of, read_maps
 
 __all__ = ["BLENDER_METHODS", "LOSS_MAPS", "repacked_input", "blender_unwrap", "ssp_uv", "sspop_uv",
@@ -108,18 +108,8 @@ def _post_counts(restored, angles):
     return {"restored_charts": int(len(restored)), "turned_charts": int(np.count_nonzero(angles))}
 
 
-def _texture_image(objects):
-    """The first base-colour image of the objects' materials (the loss image: its texel grid is the frame)."""
-    for obj in objects:
-        for slot in obj.material_slots:
-            node = base_color_image_node(slot.material)
-            if node is not None and node.image is not None:
-                return node.image
-    raise ValueError("no base-colour image")
-
-
 def _texture(objects):
-    return read_image(_texture_image(objects))
+    return read_image(source_image(objects))
 
 
 def loss_planes(objects, *, source_uv, maps="material"):
@@ -150,7 +140,7 @@ def loss_planes(objects, *, source_uv, maps="material"):
     """
     if maps not in LOSS_MAPS:
         raise ValueError(f"maps must be one of {LOSS_MAPS}, got {maps!r}")
-    image = _texture_image(objects)
+    image = source_image(objects)
     records, _ = read_maps(objects, source_uv, image)
     planes = loss_planes_of(records, read_image(image))
     if maps == "luma" and len(planes) > 1:

@@ -32,14 +32,16 @@ def _log(message):
 def textured_objects(object_name=None):
     """The mesh objects of the scene that show one image texture: ``object_name`` alone, or all that share it.
 
-    Meshes without a Base Color image (an armature's bone shape, a helper) are not part of the model.
+    The texture is the one that frames a run (:func:`.material.loss_image_nodes`: the base colour's, or when no
+    mesh has a base-colour image the largest map's); meshes without it (an armature's bone shape, a helper, an
+    untextured part beside textured ones) are not part of the model.
 
     Raises
     ------
     ValueError
         No such object, no textured mesh, or meshes with different textures (the message lists them).
     """
-    from .material import base_color_image_node
+    from .material import loss_image_nodes
 
     if object_name is not None:
         obj = bpy.data.objects.get(object_name)
@@ -47,17 +49,18 @@ def textured_objects(object_name=None):
             names = ", ".join(sorted(o.name for o in bpy.data.objects if o.type == "MESH"))
             raise ValueError(f"no object '{object_name}' in the file (meshes: {names or 'none'})")
         return [obj]
+    meshes = [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]
+    slots = [(obj, slot.material) for obj in meshes for slot in obj.material_slots]
+    first_image = {}  # each mesh in the group of its first slot's texture
+    for (obj, _), node in zip(slots, loss_image_nodes(material for _, material in slots)):
+        if node is not None:
+            first_image.setdefault(obj.name, (obj, node.image))
     groups = {}
-    for obj in bpy.context.scene.objects:
-        if obj.type != "MESH":
-            continue
-        for slot in obj.material_slots:
-            node = base_color_image_node(slot.material)
-            if node is not None:
-                groups.setdefault(node.image.name, []).append(obj)
-                break
+    for obj, image in first_image.values():
+        groups.setdefault(image.name, []).append(obj)
     if not groups:
-        raise ValueError("no mesh in the file has an image texture feeding its material's Base Color")
+        raise ValueError("no mesh in the file has a material that reads an image texture through a UV map: there "
+                         "is no texture to optimize for")
     if len(groups) > 1:
         listing = "; ".join(f"{image}: {', '.join(o.name for o in objs)}" for image, objs in sorted(groups.items()))
         raise ValueError(f"the meshes use {len(groups)} different textures ({listing}); pick one with --object")

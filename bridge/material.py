@@ -11,7 +11,7 @@ Reading never changes Blender data.
 """
 from .material_roles import MaterialReading, build_map, socket_drives
 
-__all__ = ["read_material", "material_maps", "read_object_materials", "base_color_image_node"]
+__all__ = ["read_material", "material_maps", "read_object_materials", "base_color_image_node", "loss_image_nodes"]
 
 GLTF_OUTPUT_GROUP_PREFIXES = ("glTF Material Output", "glTF Settings")
 # A colour linked straight into a shader socket renders as emission; shader nodes on the way set their own labels.
@@ -331,3 +331,40 @@ def base_color_image_node(material):
         if found is not None:
             return found
     return None
+
+
+def loss_image_nodes(materials):
+    """Per material, the Image Texture node of the image a run on these materials is framed by, or None.
+
+    That image's texel grid is the frame of the triangle-wise parameters and of the loss's first plane, it sets
+    the relative cost's reference size, and the objects a run takes together share it. It is the base colour's
+    (:func:`base_color_image_node`) wherever one of ``materials`` has a base-colour map: a slot without one beside
+    them is a constant colour (None). Only when none of them has one are they framed by another map, each
+    material's map with the most pixels (the first met on a tie), so that a material whose colour is a constant
+    and whose detail is in its normal, roughness or other data maps is optimized on those maps. Which image frames
+    the run never decides how a map is read: every map keeps its own role (:func:`material_maps`).
+
+    Parameters
+    ----------
+    materials : sequence of bpy.types.Material or None
+        The materials of one run (the objects' slots); None for an empty slot.
+
+    Returns
+    -------
+    list of bpy.types.ShaderNodeTexImage or None
+        In the order of ``materials``.
+    """
+    materials = list(materials)
+    nodes = [base_color_image_node(material) for material in materials]
+    if any(node is not None for node in nodes):
+        return nodes
+
+    from .image_file import image_size  # from the file's header: a large image is not loaded for this
+
+    def largest(material):
+        maps = material_maps(material)
+        if not maps:
+            return None
+        return max(maps, key=lambda record: image_size(record.image)[0] * image_size(record.image)[1]).node
+
+    return [largest(material) for material in materials]

@@ -98,10 +98,12 @@ def read_maps(objects, source_uv, loss_image):
                 name = reading.material.name if reading.material else "(none)"
                 notes.append(f"the {record.role} map '{record.image.name}' of material '{name}' (slot {number} of "
                              f"'{obj.name}') stays as it is, not re-baked: " + "; ".join(record.notes))
-    key = (loss_image.as_pointer(), "emit")
-    if key not in records:
-        raise ValueError(f"the base colour image '{loss_image.name}' is not read through UV map '{source_uv}'; make "
-                         "the UV map its Image Texture node reads the active one")
+    # The loss image's record (its base-colour read when the image is also read another way) comes first.
+    key = min((key for key in records if key[0] == loss_image.as_pointer()), key=lambda key: key[1] != "emit",
+              default=None)
+    if key is None:
+        raise ValueError(f"the image '{loss_image.name}' is not read through UV map '{source_uv}'; make the UV map "
+                         "its Image Texture node reads the active one")
     ordered = [records.pop(key)] + list(records.values())
     return ordered, list(dict.fromkeys(notes))
 

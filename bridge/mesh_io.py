@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core.mesh import MeshArrays, concatenate_meshes
 from ..core.settings import MODEL_SUFFIXES
-from .material import base_color_image_node
+from .material import base_color_image_node, loss_image_nodes
 
 __all__ = ["import_model", "read_mesh", "read_image", "load_textured_mesh",
            "write_uv_layer", "image_triangle_mask"]
@@ -148,7 +148,9 @@ def read_image(image):
 
 
 def image_triangle_mask(obj, mesh_arrays, image):
-    """Which triangles of ``mesh_arrays`` (read from ``obj``) have ``image`` as their base colour.
+    """Which triangles of ``mesh_arrays`` (read from ``obj``) show ``image``: their material's base colour, or
+    when none of ``obj``'s materials has a base-colour image, their material's largest map
+    (:func:`.material.loss_image_nodes`).
 
     Parameters
     ----------
@@ -161,7 +163,7 @@ def image_triangle_mask(obj, mesh_arrays, image):
     -------
     (m,) bool ndarray
     """
-    slot_images = [base_color_image_node(slot.material) for slot in obj.material_slots]
+    slot_images = loss_image_nodes(slot.material for slot in obj.material_slots)
     slot_uses = np.array([node is not None and node.image == image for node in slot_images] or [False])
     # Blender clamps material indices beyond the last slot to the last slot
     return slot_uses[np.clip(mesh_arrays.material_index, 0, len(slot_uses) - 1)]

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..core.progress import InThread, report_while_waiting
 from .image_file import image_channels, image_size, iter_read_image
-from .material import base_color_image_node
+from .material import loss_image_nodes
 
 __all__ = ["READ_STEPS", "STAGE_MODULES", "target_problem", "source_image", "notes_for_objects", "one_object_per_mesh",
            "iter_import_stages", "iter_read_objects"]
@@ -25,30 +25,35 @@ def target_problem(obj):
                 "local first (Object > Relations > Make Local)")
     if not obj.data.uv_layers:
         return f"Mesh '{obj.data.name}' has no UV map: unwrap it first"
-    if not any(base_color_image_node(slot.material) for slot in obj.material_slots):
-        return f"Object '{obj.name}' has no image texture feeding a material's Base Color"
+    if not any(loss_image_nodes(slot.material for slot in obj.material_slots)):
+        return (f"Object '{obj.name}' has no material that reads an image texture through a UV map: there is no "
+                "texture to optimize for")
     return None
 
 
 def source_image(objects):
-    """The one base-colour image of ``objects``, or a ValueError that says which images were found where."""
+    """The one image that frames a run on ``objects`` (:func:`.material.loss_image_nodes`: their base colour's,
+    or when none has one their largest map's), or a ValueError that says which images were found where."""
+    slot_materials = [(obj, index, slot.material) for obj in objects for index, slot in enumerate(obj.material_slots)]
     per_object = {}
-    for obj in objects:
-        for index, slot in enumerate(obj.material_slots):
-            if (node := base_color_image_node(slot.material)) is not None:
-                per_object.setdefault(obj.name, {}).setdefault(node.image, []).append(index)
+    for (obj, index, _), node in zip(slot_materials, loss_image_nodes(material for _, _, material in slot_materials)):
+        if node is not None:
+            per_object.setdefault(obj.name, {}).setdefault(node.image, []).append(index)
     images = {image for slots in per_object.values() for image in slots}
     for name, slots in per_object.items():
         if len(slots) > 1:
             listing = "; ".join(f"'{image.name}' on slot{'s' if len(indices) > 1 else ''} "
                                 f"{', '.join(str(i + 1) for i in indices)}"
                                 for image, indices in sorted(slots.items(), key=lambda item: item[0].name))
-            raise ValueError(f"object '{name}' uses {len(slots)} different images for its base colour ({listing}); "
+            raise ValueError(f"object '{name}' uses {len(slots)} different images as its texture ({listing}); "
                              "one run optimizes one texture: separate the object by material (Edit Mode, Mesh > "
                              "Separate > By Material) and optimize the part with the texture you want")
-    if len(images) != 1:
+    if not images:
+        raise ValueError("none of the objects' materials reads an image texture through a UV map: there is no "
+                         "texture to optimize for")
+    if len(images) > 1:
         names = ", ".join(sorted(image.name for image in images))
-        raise ValueError(f"the objects' base colours use {len(images)} images ({names}); optimize objects that "
+        raise ValueError(f"the objects use {len(images)} different textures ({names}); optimize objects that "
                          "share one texture together, or each material's objects separately")
     (image,) = images
     if image.source == "TILED":

@@ -13,15 +13,17 @@ SLICE_SECONDS = 0.1
 
 
 def _objects(context):
-    """The active object plus the selected meshes that share its base-colour image (one atlas)."""
-    from ..bridge.material import base_color_image_node
+    """The active object plus the selected meshes that share its texture (one atlas; the base colour's, or the
+    largest map's when there is no base-colour image: ``bridge.material.loss_image_nodes``)."""
+    from ..bridge.material import loss_image_nodes
 
     active = context.active_object
-    images = {node.image for slot in active.material_slots if (node := base_color_image_node(slot.material))}
-    others = [obj for obj in context.selected_objects if obj is not active and obj.type == "MESH"
-              and any((node := base_color_image_node(slot.material)) and node.image in images
-                      for slot in obj.material_slots)]
-    return [active, *others]
+    candidates = [obj for obj in context.selected_objects if obj is not active and obj.type == "MESH"]
+    slots = [(obj, slot.material) for obj in [active, *candidates] for slot in obj.material_slots]
+    nodes = list(zip(slots, loss_image_nodes(material for _, material in slots)))
+    images = {node.image for (obj, _), node in nodes if obj is active and node is not None}
+    sharing = {obj.name for (obj, _), node in nodes if node is not None and node.image in images}
+    return [active, *(obj for obj in candidates if obj.name in sharing)]
 
 
 class UV_OT_perceptual_optimize(bpy.types.Operator):

@@ -753,3 +753,49 @@ def test_detail_only_in_another_map_keeps_its_triangles_large(where):
         add_orm(material, new_image("roughness", 64, orm))
     result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
     assert area_ratio_left_to_right(obj, result) > 3
+
+
+@pytest.mark.parametrize("where", ["normal", "roughness"])
+def test_a_material_without_a_base_colour_image_is_optimized_on_its_other_maps(where):
+    # Base Color is a constant (no image at all): the run is framed by the material's other map, read in its own
+    # role, and keeps the triangles carrying its detail large as when a flat base-colour image is beside it.
+    from perceptual_uv.bridge.read_objects import target_problem
+
+    obj, material = flat_grid(f"no_colour_{where}")
+    tree = material.node_tree
+    tree.nodes.remove(tree.nodes["Image Texture"])
+    tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.3, 0.5, 0.7, 1.0)
+    rng = np.random.default_rng(3)
+    left = detail_on_the_left(64, rng)[..., None]
+    if where == "normal":
+        tilt = np.stack([0.5 + 0.3 * rng.random((64, 64)), 0.5 + 0.3 * rng.random((64, 64)), np.ones((64, 64))], -1)
+        detail = add_normal_map(material, new_image("bumps_alone", 64, left * tilt + (1 - left) * np.array([0.5, 0.5, 1.0])))
+    else:
+        orm = np.full((64, 64, 3), 0.5)
+        orm[..., 1] = left[..., 0] * rng.random((64, 64)) + (1 - left[..., 0]) * 0.5
+        detail = add_orm(material, new_image("roughness_alone", 64, orm))
+    assert target_problem(obj) is None
+
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+
+    assert area_ratio_left_to_right(obj, result) > 3
+    (copy,) = result.materials
+    (new_image_node,) = [node for node in copy.node_tree.nodes if node.type == "TEX_IMAGE"]
+    assert new_image_node.image in result.images and new_image_node.image is not detail.image
+    assert new_image_node.image.colorspace_settings.name == "Non-Color"  # a data map stays data
+    (link,) = new_image_node.inputs["Vector"].links
+    assert link.from_node.type == "UVMAP" and link.from_node.uv_map == result.uv_map
+    assert tuple(copy.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value) == \
+        pytest.approx((0.3, 0.5, 0.7, 1.0))
+    assert [map_["role"] for map_ in result.report["maps"]] == [
+        "normal_tangent" if where == "normal" else "metallic_roughness"]
+
+
+def test_an_object_whose_materials_read_no_image_is_refused_with_the_reason():
+    from perceptual_uv.bridge.read_objects import source_image, target_problem
+
+    obj, material = flat_grid("no_image_at_all")
+    material.node_tree.nodes.remove(material.node_tree.nodes["Image Texture"])
+    assert "no material that reads an image texture" in target_problem(obj)
+    with pytest.raises(ValueError, match="none of the objects' materials reads an image texture"):
+        source_image([obj])

@@ -110,6 +110,14 @@ def test_explicit_resolution_keeps_the_margin():
             assert np.maximum(low_j - high_i, low_i - high_j).max() >= 4 - 1e-9
 
 
+def test_a_margin_too_wide_for_the_image_is_refused_saying_what_to_change():
+    # Each chart takes at least one pixel plus half the 4 px margin on every side, 5 x 5: two never fit in 8 x 8.
+    uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1)])
+    with pytest.raises(ValueError, match="do not fit a 8 px image with a 4 px margin: lower the margin"):
+        pack_charts(uv, face_chart, margin=4, resolution=8)
+    assert pack_charts(uv, face_chart, margin=1, resolution=8).resolution == 8
+
+
 def test_charts_far_apart_pack_as_if_they_were_close():
     # Where the charts lie before packing does not count: 1e6 UV units apart, the same 16 px image as side by side.
     near, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])

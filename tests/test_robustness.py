@@ -173,8 +173,8 @@ def test_no_image_texture_is_refused():
     obj = textured_grid()
     tree = obj.material_slots[0].material.node_tree
     tree.nodes.remove(tree.nodes["Image Texture"])
-    assert "no image texture" in target_problem(obj)
-    refused([obj], match="no image texture feeding")
+    assert "no material that reads an image texture" in target_problem(obj)
+    refused([obj], match="no material that reads an image texture")
 
 
 def test_missing_image_file_is_refused_with_its_path(tmp_path):
