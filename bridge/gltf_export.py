@@ -5,7 +5,9 @@ What the file keeps: every object of the scene (armatures and their skins, other
 cameras), the animations, joints and weights, shape keys, and the input's own vertex colours. On the optimized
 meshes, TEXCOORD_0 is the new UV map and the only texture coordinates, the materials are the run's copies that
 read the new image through it, and tangents are exported (computed in the new UV map) so that a tangent-space
-normal map baked in that frame shades the same in a viewer. The per-face loss overlay (``perceptual_loss``,
+normal map baked in that frame shades the same in a viewer (a vertex whose triangles all have zero area in the UV
+map, where MikkTSpace finds no tangent, gets a unit one orthogonal to its normal: :mod:`..core.gltf_tangents`, so
+the file stays valid). The per-face loss overlay (``perceptual_loss``,
 ``perceptual_loss_color``) is for Blender's viewport and is not exported.
 
 The exporter writes every UV map and colour attribute of a mesh it exports, so each optimized mesh is exported
@@ -14,6 +16,7 @@ afterwards and the copies are removed. The user's data is never changed.
 """
 import bpy
 
+from ..core.gltf_tangents import repair_tangents
 from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
 
 __all__ = ["export_glb", "EXPORT_OPTIONS"]
@@ -114,6 +117,7 @@ def export_glb(objects, result, path):
             for obj in mesh_users:
                 obj.data = copy
         bpy.ops.export_scene.gltf(filepath=str(path), **EXPORT_OPTIONS)
+        repair_tangents(path)
     finally:
         for mesh, name, copy, mesh_users in reversed(swapped):
             for obj in mesh_users:

@@ -367,3 +367,49 @@ def test_export_glb_uses_copies_and_leaves_the_scene_as_it_was(empty_scene, tmp_
     reason = gltf_validate.unavailable()
     if reason is None:
         assert gltf_validate.validate(out)["errors"] == 0
+
+
+
+# A triangle of DamagedHelmet (glTF-Sample-Assets) after a run, glTF's y-up coordinates: its UV area is 1.2e-8, and
+# MikkTSpace leaves its third corner without a tangent, (0, 0, 0, 1), which the validator reports as an error.
+HELMET_CORNERS = np.array([[-0.9138807058334351, -0.6013648509979248, 0.1041320413351059],
+                           [-0.9130095839500427, -0.601050853729248, 0.10783304274082184],
+                           [-0.944661557674408, -0.6124428510665894, -0.02745436131954193]], dtype=np.float32)
+HELMET_UVS = np.array([[0.9884565472602844, 0.9734083414077759], [0.9889580011367798, 0.9728500843048096],
+                       [0.970609724521637, 0.9932299852371216]], dtype=np.float32)
+
+
+def test_a_corner_without_a_tangent_gets_a_unit_one_in_the_glb(empty_scene, tmp_path):
+    from types import SimpleNamespace
+
+    from perceptual_uv.bridge.gltf_export import export_glb
+
+    corners = HELMET_CORNERS[:, [0, 2, 1]] * np.array([1, -1, 1], dtype=np.float32)  # y-up to Blender's z-up
+    mesh = bpy.data.meshes.new("Sliver")
+    mesh.from_pydata(corners.tolist(), [], [(0, 1, 2)])
+    layer = mesh.uv_layers.new(name="PerceptualUV")
+    layer.uv.foreach_set("vector", np.stack([HELMET_UVS[:, 0], 1 - HELMET_UVS[:, 1]], axis=1).ravel())
+    obj = bpy.data.objects.new("Sliver", mesh)
+    empty_scene.collection.objects.link(obj)
+    out = tmp_path / "sliver.glb"
+
+    export_glb([obj], SimpleNamespace(uv_map="PerceptualUV", materials=[]), out)
+
+    gltf, binary = read_glb(out)
+    (primitive,) = gltf["meshes"][0]["primitives"]
+    normals = accessor(gltf, binary, primitive["attributes"]["NORMAL"])
+    tangents = accessor(gltf, binary, primitive["attributes"]["TANGENT"])
+    np.testing.assert_allclose(np.linalg.norm(tangents[:, :3], axis=1), 1.0, atol=1e-4)  # Blender rounds
+    np.testing.assert_allclose(np.abs(tangents[:, 3]), 1.0)
+    np.testing.assert_allclose(np.sum(tangents[:, :3] * normals, axis=1), 0.0, atol=1e-3)
+    # The corners MikkTSpace did give a tangent keep it: dP/du by hand, made orthogonal to the face normal.
+    p, uv = HELMET_CORNERS.astype(float), HELMET_UVS.astype(float) * [1, -1]  # glTF's v runs down
+    (du1, dv1), (du2, dv2) = uv[1] - uv[0], uv[2] - uv[0]
+    along_u = ((p[1] - p[0]) * dv2 - (p[2] - p[0]) * dv1) / (du1 * dv2 - du2 * dv1)
+    normal = np.cross(p[1] - p[0], p[2] - p[0])
+    normal /= np.linalg.norm(normal)
+    along_u -= along_u.dot(normal) * normal
+    np.testing.assert_allclose(tangents[:2, :3], np.tile(along_u / np.linalg.norm(along_u), (2, 1)), atol=1e-2)
+    reason = gltf_validate.unavailable()
+    if reason is None:
+        assert gltf_validate.validate(out)["errors"] == 0
