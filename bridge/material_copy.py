@@ -102,8 +102,14 @@ def read_maps(objects, source_uv, loss_image):
     key = min((key for key in records if key[0] == loss_image.as_pointer()), key=lambda key: key[1] != "emit",
               default=None)
     if key is None:
-        raise ValueError(f"the image '{loss_image.name}' is not read through UV map '{source_uv}'; make the UV map "
-                         "its Image Texture node reads the active one")
+        read_through = sorted({str(record.uv_map) for obj in objects for slot in obj.material_slots
+                               for record in material_maps(slot.material, render_uv=_render_uv(obj))
+                               if record.image == loss_image})
+        where = f" (it is read through {', '.join(repr(uv) for uv in read_through)})" if read_through else ""
+        usable = len(read_through) == 1 and all(read_through[0] in obj.data.uv_layers for obj in objects)
+        hint = (f"pass --uv {read_through[0]} on the command line, or make '{read_through[0]}' the active UV map in "
+                "Blender" if usable else "make the UV map its Image Texture node reads the active one")
+        raise ValueError(f"the image '{loss_image.name}' is not read through UV map '{source_uv}'{where}: {hint}")
     ordered = [records.pop(key)] + list(records.values())
     return ordered, list(dict.fromkeys(notes))
 

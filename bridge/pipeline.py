@@ -172,7 +172,10 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     source_uv = resolve_source_uv(objects, source_uv)
     for obj in objects:
         if source_uv not in obj.data.uv_layers:
-            raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}'")
+            names = ", ".join(f"'{layer.name}'" for layer in obj.data.uv_layers)
+            raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}' (its UV maps: {names}); the "
+                             "objects optimized together need one UV map of the same name: rename it, or optimize "
+                             "the objects separately (--object, or select them one at a time)")
         if len(obj.data.uv_layers) >= MAX_UV_MAPS:
             raise ValueError(f"mesh '{obj.data.name}' already has {len(obj.data.uv_layers)} UV maps, the most "
                              f"Blender allows; remove one it does not need (Object Data > UV Maps) first")

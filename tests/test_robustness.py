@@ -382,6 +382,24 @@ def test_objects_sharing_an_atlas_are_optimized_together():
                                               for m in result.materials)
 
 
+def test_objects_with_different_uv_map_names_are_refused_naming_them():
+    first = textured_grid("named_a")
+    second = textured_grid("named_b", image=image_of(first), location=(2.0, 0.0, 0.0))
+    second.data.uv_layers["UVMap"].name = "Lightmap"
+    message = refused([first, second], match="mesh 'named_b' has no UV map 'UVMap'")
+    assert "its UV maps: 'Lightmap'" in message and "same name" in message
+
+
+def test_a_texture_read_through_another_uv_map_than_the_active_one_names_it():
+    # The image node has no Vector input, so it reads the render UV map; the active one (for editing) is new.
+    obj = textured_grid("other_active")
+    extra = obj.data.uv_layers.new(name="Edit")
+    obj.data.uv_layers.active = extra
+    assert obj.data.uv_layers["UVMap"].active_render
+    message = refused([obj], match="is not read through UV map 'Edit' \\(it is read through 'UVMap'\\)")
+    assert "pass --uv UVMap" in message
+
+
 def test_modifiers_are_left_on_and_the_base_mesh_is_optimized():
     obj = textured_grid()
     obj.modifiers.new("Subdivision", "SUBSURF")
