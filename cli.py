@@ -280,18 +280,34 @@ def _write_traceback(error):
     return path
 
 
+def _forget_handled_interrupt():
+    """Make the interpreter forget a KeyboardInterrupt this CLI has handled.
+
+    CPython 3.11 remembers one that left any code run through its C API (``PyRun_*``, as Blender runs Python),
+    even when a caller caught it, and ends a ``python -m`` process by SIGINT instead of its exit code: a cancelled
+    run exited -2 instead of 130 when the signal landed there. The flag is a global of that interpreter; elsewhere
+    there is nothing to forget."""
+    import ctypes
+
+    try:
+        ctypes.c_int.in_dll(ctypes.pythonapi, "_Py_UnhandledKeyboardInterrupt").value = 0
+    except (ValueError, AttributeError):
+        pass
+
+
 def main(argv=None):
     """Run the CLI; returns the process exit code.
 
     Before it returns, the stages' threads that a cancel or an error left running finish (they stop at their
     next check or are bounded): a daemon thread still in numpy while the interpreter shuts down makes the
     process exit 120 instead of this code. A second Ctrl-C or SIGTERM meanwhile, or :data:`THREADS_WAIT_S`,
-    stops waiting."""
+    stops waiting. A cancel exits 130 (:func:`_forget_handled_interrupt`)."""
     code = _main(argv)
     try:
         wait_for_threads(timeout=THREADS_WAIT_S)
     except KeyboardInterrupt:
-        return 130
+        code = 130
+    _forget_handled_interrupt()
     return code
 
 

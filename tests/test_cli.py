@@ -142,3 +142,21 @@ def test_an_internal_failure_prints_one_line_naming_the_traceback_file_and_exits
             assert "in broken" in text and text.rstrip().endswith(f"{type(error).__name__}: {error}")
         finally:
             path.unlink()
+
+
+def test_a_cancel_exits_130_when_the_interrupt_left_code_run_through_the_c_api(tmp_path):
+    # CPython 3.11 remembers a KeyboardInterrupt that left code run through PyRun_* (as Blender runs Python), even a
+    # caught one, and ends a `python -m` process by SIGINT (returncode -2). The run here is cancelled that way:
+    # its body raises KeyboardInterrupt through PyRun_String, the CLI reports the cancel and must exit 130.
+    (tmp_path / "cancel_through_c_api.py").write_text(
+        "import ctypes, sys\n"
+        "from perceptual_uv import cli\n"
+        "run = ctypes.pythonapi.PyRun_String\n"
+        "run.restype, run.argtypes = ctypes.py_object, [ctypes.c_char_p, ctypes.c_int, ctypes.py_object,"
+        " ctypes.py_object]\n"
+        "cli._run = lambda args: run(b'raise KeyboardInterrupt', 257, {}, {})  # 257: Py_file_input\n"
+        f"sys.exit(cli.main(['optimize', {str(SPOT)!r}, '--out', 'out.glb']))\n")
+    done = subprocess.run([sys.executable, "-m", "cancel_through_c_api"], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path)
+    assert done.returncode == 130, done.stderr[-2000:]
+    assert done.stderr.strip().splitlines()[-1] == "perceptual_uv: cancelled"
