@@ -210,20 +210,23 @@ def evaluate_file(args):
         No textured mesh object, or a UV map missing on an object.
     """
     from .evaluate import evaluate_uv_map
+    from .material_copy import original_materials
     from .mesh_io import import_model
 
     import_model(args.input)
-    objects = [obj for obj in textured_objects() if args.uv in obj.data.uv_layers]
-    if not objects:
-        raise ValueError(f"no textured mesh object in {args.input} has a UV map '{args.uv}'")
-    ref_uv = args.ref_uv or objects[0].data.uv_layers.active.name
-    screen = getattr(args, "screen", 512)
-    if getattr(args, "shaded", False):
-        from .evaluate_shaded import evaluate_shaded
+    # A file an optimize run wrote shows the material copies: the evaluation compares against what the run read.
+    with original_materials([obj for obj in bpy.context.scene.objects if obj.type == "MESH"]):
+        objects = [obj for obj in textured_objects() if args.uv in obj.data.uv_layers]
+        if not objects:
+            raise ValueError(f"no textured mesh object in {args.input} has a UV map '{args.uv}'")
+        ref_uv = args.ref_uv or objects[0].data.uv_layers.active.name
+        screen = getattr(args, "screen", 512)
+        if getattr(args, "shaded", False):
+            from .evaluate_shaded import evaluate_shaded
 
-        result = evaluate_shaded(objects, args.uv, reference_uv=ref_uv, costs=args.costs, screen_pixels=screen)
-    else:
-        result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs, screen_pixels=screen)
+            result = evaluate_shaded(objects, args.uv, reference_uv=ref_uv, costs=args.costs, screen_pixels=screen)
+        else:
+            result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs, screen_pixels=screen)
     result["input"] = str(pathlib.Path(args.input).resolve())
     for p in result["points"]:
         if "maps" in p:

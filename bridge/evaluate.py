@@ -44,7 +44,8 @@ def reference_resolution(objects):
             if node is not None and node.image is not None:
                 sizes.append(max(int(node.image.size[0]), int(node.image.size[1])))
     if not sizes or max(sizes) == 0:
-        raise ValueError("no base-colour image on the objects: nothing to evaluate")
+        raise ValueError("no base-colour image on the objects: the flat evaluation sees the base colour alone; "
+                         "--shaded measures every map of the material")
     return max(sizes)
 
 

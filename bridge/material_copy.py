@@ -8,6 +8,7 @@ base colour (or its role's), each relative to its own input size, and the materi
 through the new UV map. A copy carries :data:`COPY_PROPERTY`, so a run on the result of an earlier one reads what
 it shows.
 """
+import contextlib
 import os
 
 import bpy
@@ -16,7 +17,7 @@ import numpy as np
 from .image_file import image_is_float, image_size
 from .material import material_maps, read_material, read_object_materials
 
-__all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "resolve_source_uv", "read_maps", "loss_planes_of",
+__all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "original_materials", "resolve_source_uv", "read_maps", "loss_planes_of",
            "iter_loss_planes_of", "image_side", "image_stem", "map_resolution", "memory_resolution",
            "material_copies", "map_report", "file_bytes"]
 
@@ -42,6 +43,39 @@ def _copies_read(objects):
             for record in material_maps(material, render_uv=_render_uv(obj)):
                 found.setdefault(record.uv_map, []).append((obj, index + 1, material))
     return found
+
+
+@contextlib.contextmanager
+def original_materials(objects):
+    """Within the block, every slot of ``objects`` that holds a material copy made by a run holds its original.
+
+    After a run the slots show copies that read the new images through the new UV map; an evaluation of that UV
+    map has to re-bake and compare the material the run read, not the copy. The slots get their copies back
+    afterwards, whatever happens in the block.
+
+    Raises
+    ------
+    ValueError
+        A copy's original is no longer in the file.
+    """
+    swapped = []
+    try:
+        for obj in objects:
+            for number, slot in enumerate(obj.material_slots, start=1):
+                material = slot.material
+                if material is None or COPY_PROPERTY not in material:
+                    continue
+                original = bpy.data.materials.get(material[COPY_PROPERTY])
+                if original is None:
+                    raise ValueError(f"slot {number} of '{obj.name}' holds '{material.name}', made by an Optimize UVs "
+                                     f"run from '{material[COPY_PROPERTY]}', which is no longer in the file: evaluate "
+                                     "the file the run started from, with the new UV map added")
+                swapped.append((slot, material))
+                slot.material = original
+        yield
+    finally:
+        for slot, material in reversed(swapped):
+            slot.material = material
 
 
 def resolve_source_uv(objects, source_uv):

@@ -111,3 +111,40 @@ def test_face_ids_cover_the_render_and_face_the_camera(spot):
         towards = np.einsum("kd,kd->k", normals[seen], position - centroids[seen]) > 0
         assert towards.mean() > 0.99
         assert len(np.unique(seen)) > 500
+
+
+def test_evaluating_an_optimize_result_compares_against_the_material_the_run_read(tmp_path, capsys):
+    # After a run the slot shows the copy, which reads the new image through the new UV map. `evaluate` on the
+    # saved result must bake and compare the original texture (the copy's image read through the old UV map gave
+    # another resolution and q): its numbers equal those of the same file with the original put back by hand.
+    import json
+
+    from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end
+    from perceptual_uv.cli import main
+    from perceptual_uv.core.settings import OptimizeSettings
+
+    from conftest import reset_blender_scene
+    from test_optimize_end_to_end import FAST
+    from test_robustness import textured_grid
+
+    reset_blender_scene()
+    obj = textured_grid("evaluated", k=4)
+    original = obj.material_slots[0].material
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    assert obj.material_slots[0].material is not original  # the copy
+    optimized = tmp_path / "optimized.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(optimized), copy=True)
+    obj.material_slots[0].link = "DATA"  # the mesh's own slot: the original material
+    assert obj.material_slots[0].material is original
+    by_hand = tmp_path / "by_hand.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(by_hand), copy=True)
+
+    outputs = []
+    for path in (optimized, by_hand):
+        out = tmp_path / f"{path.stem}.json"
+        assert main(["evaluate", str(path), "--uv", result.uv_map, "--costs", "0.5", "--screen", "32",
+                     "--json", str(out)]) == 0
+        outputs.append(json.loads(out.read_text())["points"][0])
+    capsys.readouterr()
+    assert outputs[0]["resolution"] == outputs[1]["resolution"]
+    assert outputs[0]["q"] == outputs[1]["q"]
