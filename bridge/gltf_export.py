@@ -4,8 +4,9 @@
 What the file keeps: every object of the scene (armatures and their skins, other meshes, empties, lights and
 cameras), the animations, joints and weights, shape keys, and the input's own vertex colours. On the optimized
 meshes, TEXCOORD_0 is the new UV map and the only texture coordinates, the materials are the run's copies that
-read the new image through it, and tangents are exported (computed in the new UV map) so that a tangent-space
-normal map baked in that frame shades the same in a viewer (a vertex whose triangles all have zero area in the UV
+read the new image through it, and, when a material of the file has a tangent-space normal map, tangents are
+exported (computed in the new UV map) so that a normal map baked in that frame shades the same in a viewer (without
+one they would add 16 bytes to every vertex and shade nothing; a vertex whose triangles all have zero area in the UV
 map, where MikkTSpace finds no tangent, gets a unit one orthogonal to its normal: :mod:`..core.gltf_tangents`, so
 the file stays valid). The per-face loss overlay (``perceptual_loss``,
 ``perceptual_loss_color``) is for Blender's viewport and is not exported.
@@ -18,11 +19,13 @@ import bpy
 
 from ..core.gltf_tangents import repair_tangents
 from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
+from .material import material_maps
 
 __all__ = ["export_glb", "EXPORT_OPTIONS"]
 
 # Blender 5.0's glTF exporter, spelled out where its default would drop part of the input (lights, cameras,
-# custom properties as extras) or where this tool needs it (tangents for normal maps baked in the new UV map).
+# custom properties as extras) or where this tool needs it (tangents for normal maps baked in the new UV map, set
+# per file by :func:`export_glb`).
 EXPORT_OPTIONS = dict(
     export_format="GLB",
     use_selection=False,        # the whole scene, not just the optimized meshes
@@ -33,7 +36,7 @@ EXPORT_OPTIONS = dict(
     export_image_format="AUTO",  # the baked PNG stays PNG, the input's JPEGs stay JPEG
     export_texcoords=True,
     export_normals=True,
-    export_tangents=True,
+    export_tangents=True,       # only when a material has a tangent-space normal map: export_glb
     export_materials="EXPORT",
     export_unused_images=False,
     export_unused_textures=False,
@@ -70,6 +73,13 @@ def _optimized_meshes(objects, uv_map, materials):
                 if original is not None:
                     copy_of[original] = slot.material
     return users, copy_of
+
+
+def _has_tangent_normal_map():
+    """Whether a material some mesh object of the file shows reads a tangent-space normal map."""
+    shown = {slot.material for obj in bpy.data.objects if obj.type == "MESH" and obj.users_scene
+             for slot in obj.material_slots if slot.material is not None}
+    return any(record.role == "normal_tangent" for material in shown for record in material_maps(material))
 
 
 def _export_mesh(mesh, uv_map, copy_of):
@@ -116,7 +126,8 @@ def export_glb(objects, result, path):
             copy.name = name  # the glTF mesh keeps the input's name
             for obj in mesh_users:
                 obj.data = copy
-        bpy.ops.export_scene.gltf(filepath=str(path), **EXPORT_OPTIONS)
+        options = dict(EXPORT_OPTIONS, export_tangents=_has_tangent_normal_map())
+        bpy.ops.export_scene.gltf(filepath=str(path), **options)
         repair_tangents(path)
     finally:
         for mesh, name, copy, mesh_users in reversed(swapped):

@@ -130,7 +130,8 @@ def check_export(input_path, out, report):
             attributes = primitive["attributes"]
             assert "TEXCOORD_0" in attributes and not any(
                 name.startswith("TEXCOORD_") and name != "TEXCOORD_0" for name in attributes), attributes
-            assert "TANGENT" in attributes
+            # tangents where a normal map needs them (baked in the new UV map's frame), none otherwise
+            assert ("TANGENT" in attributes) == any("normalTexture" in m for m in gltf.get("materials", []))
             if skinned:
                 assert "JOINTS_0" in attributes and "WEIGHTS_0" in attributes
             material = gltf["materials"][primitive["material"]]
@@ -360,7 +361,7 @@ def test_export_glb_uses_copies_and_leaves_the_scene_as_it_was(empty_scene, tmp_
     for primitive in mesh_json["primitives"]:
         assert {name for name in primitive["attributes"] if name.startswith(("TEXCOORD_", "COLOR_"))} == {
             "TEXCOORD_0"}
-        assert "TANGENT" in primitive["attributes"] and len(primitive["targets"]) == 1
+        assert "TANGENT" not in primitive["attributes"] and len(primitive["targets"]) == 1  # no normal map
         assert gltf["materials"][primitive["material"]]["name"] == "Box_perceptual"
     assert [image["name"] for image in gltf["images"]] == ["new_image"]
     assert len(gltf.get("animations", [])) == 1
@@ -389,6 +390,16 @@ def test_a_corner_without_a_tangent_gets_a_unit_one_in_the_glb(empty_scene, tmp_
     mesh.from_pydata(corners.tolist(), [], [(0, 1, 2)])
     layer = mesh.uv_layers.new(name="PerceptualUV")
     layer.uv.foreach_set("vector", np.stack([HELMET_UVS[:, 0], 1 - HELMET_UVS[:, 1]], axis=1).ravel())
+    material = bpy.data.materials.new("Bumps")  # a normal map: the file needs tangents
+    normal_image = bpy.data.images.new("bumps", 4, 4)
+    normal_image.pack()
+    texture = material.node_tree.nodes.new("ShaderNodeTexImage")
+    texture.image = normal_image
+    normal_map = material.node_tree.nodes.new("ShaderNodeNormalMap")
+    material.node_tree.links.new(texture.outputs["Color"], normal_map.inputs["Color"])
+    principled = material.node_tree.nodes["Principled BSDF"]
+    material.node_tree.links.new(normal_map.outputs["Normal"], principled.inputs["Normal"])
+    mesh.materials.append(material)
     obj = bpy.data.objects.new("Sliver", mesh)
     empty_scene.collection.objects.link(obj)
     out = tmp_path / "sliver.glb"
