@@ -9,6 +9,8 @@ the way to it (see :mod:`.material_roles`); Separate Color / Separate XYZ output
 
 Reading never changes Blender data.
 """
+import math
+
 from .material_roles import MaterialReading, build_map, socket_drives
 
 __all__ = ["read_material", "material_maps", "read_object_materials", "base_color_image_node", "loss_image_nodes"]
@@ -365,6 +367,6 @@ def loss_image_nodes(materials):
         maps = material_maps(material)
         if not maps:
             return None
-        return max(maps, key=lambda record: image_size(record.image)[0] * image_size(record.image)[1]).node
+        return max(maps, key=lambda record: math.prod(image_size(record.image))).node
 
     return [largest(material) for material in materials]
