@@ -3,7 +3,8 @@
 
 What the file keeps: every object of the scene (armatures and their skins, other meshes, empties, lights and
 cameras), the animations, joints and weights, shape keys, and the input's own vertex colours. On the optimized
-meshes, TEXCOORD_0 is the new UV map and the only texture coordinates, the materials are the run's copies that
+meshes, TEXCOORD_0 is the new UV map (the only texture coordinates, but for UV maps through which a map the run
+left as it is is still read, exported after it), the materials are the run's copies that
 read the new image through it, and, when a material of the file has a tangent-space normal map, tangents are
 exported (computed in the new UV map) so that a normal map baked in that frame shades the same in a viewer (without
 one they would add 16 bytes to every vertex and shade nothing; a vertex whose triangles all have zero area in the UV
@@ -16,10 +17,11 @@ through a temporary copy that has only the new UV map and no overlay; the object
 afterwards and the copies are removed. The user's data is never changed.
 """
 import bpy
+import numpy as np
 
 from ..core.gltf_tangents import repair_tangents
 from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
-from .material import material_maps
+from .material import material_maps, read_material
 
 __all__ = ["export_glb", "EXPORT_OPTIONS"]
 
@@ -82,11 +84,32 @@ def _has_tangent_normal_map():
     return any(record.role == "normal_tangent" for material in shown for record in material_maps(material))
 
 
-def _export_mesh(mesh, uv_map, copy_of):
-    """A copy of ``mesh`` with ``uv_map`` as its only UV map, no loss overlay, and the material copies."""
+def _uv_maps_read_as_they_are(mesh, users, uv_map, copy_of):
+    """The UV maps of ``mesh`` other than ``uv_map`` through which the materials its users are exported with
+    (``copy_of`` maps an original to its copy) read a map the run left as it is (an occlusion map on a second UV
+    map, say), in the mesh's order."""
+    render = next((layer.name for layer in mesh.uv_layers if layer.active_render), None)
+    read = set()
+    for material in {copy_of.get(slot.material, slot.material) for obj in users for slot in obj.material_slots}:
+        reading = read_material(material, source_uv=uv_map, render_uv=render)
+        read.update(record.uv_map for record in reading.left_as_is if record.uv_map is not None)
+    return [layer.name for layer in mesh.uv_layers if layer.name in read and layer.name != uv_map]
+
+
+def _export_mesh(mesh, uv_map, copy_of, keep=()):
+    """A copy of ``mesh`` with ``uv_map`` as its first UV map (TEXCOORD_0), then the UV maps ``keep`` (the next
+    TEXCOORD_n, for the maps still read through them) and no other, no loss overlay, and the material copies."""
     copy = mesh.copy()
-    for name in [layer.name for layer in copy.uv_layers if layer.name != uv_map]:
+    order = [uv_map, *keep]
+    corners = np.empty(2 * len(copy.loops), dtype=np.float32)
+    kept = {}
+    for name in order:
+        copy.uv_layers[name].uv.foreach_get("vector", corners)
+        kept[name] = corners.copy()
+    for name in [layer.name for layer in copy.uv_layers]:
         copy.uv_layers.remove(copy.uv_layers[name])  # removal invalidates other layer references: go by name
+    for name in order:  # the exporter numbers TEXCOORD_n in the mesh's order
+        copy.uv_layers.new(name=name).uv.foreach_set("vector", kept[name])
     layer = copy.uv_layers[uv_map]
     layer.active = True
     layer.active_render = True
@@ -119,7 +142,8 @@ def export_glb(objects, result, path):
     swapped = []  # (mesh, its name, export copy, objects)
     try:
         for mesh, mesh_users in users.items():
-            copy = _export_mesh(mesh, result.uv_map, copy_of)
+            copy = _export_mesh(mesh, result.uv_map, copy_of,
+                                keep=_uv_maps_read_as_they_are(mesh, mesh_users, result.uv_map, copy_of))
             name = mesh.name
             swapped.append((mesh, name, copy, mesh_users))
             mesh.name = f"{name}.perceptual_export_source"

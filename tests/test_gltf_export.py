@@ -424,3 +424,66 @@ def test_a_corner_without_a_tangent_gets_a_unit_one_in_the_glb(empty_scene, tmp_
     reason = gltf_validate.unavailable()
     if reason is None:
         assert gltf_validate.validate(out)["errors"] == 0
+
+
+def test_a_map_left_on_another_uv_map_keeps_its_coordinates_after_the_new_ones(empty_scene, tmp_path):
+    """An occlusion image read through a second UV map ("AO") is left as it is by a run; the .glb must still read
+    it through that UV map: TEXCOORD_0 the new UV map, TEXCOORD_1 "AO" (each corner's pair of coordinates as in
+    Blender), the occlusion texture on texCoord 1, the replaced UV map gone, the validator clean."""
+    from types import SimpleNamespace
+
+    from perceptual_uv.bridge.gltf_export import export_glb
+
+    mesh = bpy.data.meshes.new("Panel")
+    bm = bmesh.new()
+    bmesh.ops.create_grid(bm, x_segments=3, y_segments=2, size=1.0)
+    bm.to_mesh(mesh)
+    bm.free()
+    rng = np.random.default_rng(2)
+    for name in ("UVMap", "AO", "PerceptualUV"):
+        mesh.uv_layers.new(name=name).uv.foreach_set("vector", rng.random(2 * len(mesh.loops)).astype(np.float32))
+    material = bpy.data.materials.new("Panel_perceptual")
+    tree = material.node_tree
+    images = {}
+    for name, uv_name in (("colour", "PerceptualUV"), ("occlusion", "AO")):
+        images[name] = bpy.data.images.new(name, 4, 4)
+        images[name].pack()
+        texture = tree.nodes.new("ShaderNodeTexImage")
+        texture.image = images[name]
+        coordinates = tree.nodes.new("ShaderNodeUVMap")
+        coordinates.uv_map = uv_name
+        tree.links.new(coordinates.outputs["UV"], texture.inputs["Vector"])
+        if name == "colour":
+            tree.links.new(texture.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Base Color"])
+        else:
+            images[name].colorspace_settings.name = "Non-Color"
+            separate = tree.nodes.new("ShaderNodeSeparateColor")
+            tree.links.new(texture.outputs["Color"], separate.inputs["Color"])
+            group = bpy.data.node_groups.new("glTF Material Output", "ShaderNodeTree")
+            group.interface.new_socket("Occlusion", in_out="INPUT", socket_type="NodeSocketFloat")
+            output = tree.nodes.new("ShaderNodeGroup")
+            output.node_tree = group
+            tree.links.new(separate.outputs["Red"], output.inputs["Occlusion"])
+    mesh.materials.append(material)
+    obj = bpy.data.objects.new("Panel", mesh)
+    empty_scene.collection.objects.link(obj)
+    out = tmp_path / "panel.glb"
+
+    export_glb([obj], SimpleNamespace(uv_map="PerceptualUV", materials=[material]), out)
+
+    gltf, binary = read_glb(out)
+    (primitive,) = gltf["meshes"][0]["primitives"]
+    assert {name for name in primitive["attributes"] if name.startswith("TEXCOORD_")} == {"TEXCOORD_0", "TEXCOORD_1"}
+    assert gltf["materials"][0]["occlusionTexture"].get("texCoord", 0) == 1
+    assert gltf["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"].get("texCoord", 0) == 0
+    pairs = np.hstack([accessor(gltf, binary, primitive["attributes"][name]) for name in ("TEXCOORD_0", "TEXCOORD_1")])
+    pairs[:, [1, 3]] = 1 - pairs[:, [1, 3]]  # glTF's v runs down
+    corners = np.hstack([np.array([tuple(loop.uv) for loop in mesh.uv_layers[name].data]) for name in
+                         ("PerceptualUV", "AO")])
+    # every exported vertex is some corner's pair, and every corner's pair is exported (up to float32 rounding)
+    distance = np.abs(pairs[:, None, :] - corners[None, :, :]).max(axis=2)
+    assert distance.min(axis=1).max() < 1e-6 and distance.min(axis=0).max() < 1e-6
+    assert [layer.name for layer in mesh.uv_layers] == ["UVMap", "AO", "PerceptualUV"]  # the user's mesh as it was
+    reason = gltf_validate.unavailable()
+    if reason is None:
+        assert gltf_validate.validate(out)["errors"] == 0
