@@ -62,14 +62,42 @@ def has_transform(record):
     return any(TRANSFORM_NOTE in note for note in record.notes)
 
 
+def _coordinates_of(node):
+    """What an Image Texture node's coordinates are, comparable between nodes: None without a Vector link, a
+    Mapping node's type and values with what feeds it, or the feeding node itself."""
+    links = node.inputs["Vector"].links
+    if not links:
+        return None
+    source = links[0].from_node
+    if source.type != "MAPPING":
+        return ("node", source.as_pointer(), links[0].from_socket.identifier)
+    values = tuple(tuple(socket.default_value) if hasattr(socket.default_value, "__len__") else socket.default_value
+                   for socket in source.inputs if socket.identifier != "Vector" and not socket.is_linked)
+    linked = tuple(socket.identifier for socket in source.inputs if socket.is_linked)
+    upstream = source.inputs["Vector"].links
+    feed = None if not upstream else (upstream[0].from_node.type, getattr(upstream[0].from_node, "uv_map", None),
+                                      upstream[0].from_socket.identifier)
+    return ("mapping", source.vector_type, values, linked, feed)
+
+
 def transform_problem(record):
     """Why a map read through a texture transform cannot be baked (a sentence), or None.
 
     Such a map is baked through its own Image Texture node and coordinates in a copy of its material, which
-    needs the node at the material's top level (not inside a node group).
+    needs the node at the material's top level (not inside a node group), and one new image holds one layout: the
+    image's nodes must all read it through the same transform (the glTF importer gives each slot a Mapping node of
+    its own, so equal values count as the same).
     """
-    if has_transform(record) and not all(node.id_data.is_embedded_data for node in record.nodes):
-        return "its coordinates pass through a texture transform inside a node group"
+    if not has_transform(record):
+        return None
+    if not all(node.id_data.is_embedded_data for node in record.nodes):
+        return ("its coordinates pass through a texture transform inside a node group; move its Image Texture node "
+                "and coordinates out of the group, or bake the transform into the image first")
+    layouts = {_coordinates_of(node) for node in record.nodes}
+    if len(layouts) > 1:
+        return (f"{len(record.nodes)} Image Texture nodes read it through {len(layouts)} different texture "
+                "transforms, and one new image holds one layout; give each transform an image of its own, or bake "
+                "the transforms into the images first")
     return None
 
 

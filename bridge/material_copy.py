@@ -125,8 +125,7 @@ def read_maps(objects, source_uv, loss_image):
                     raise ValueError(f"{where} has no pixels: its file {path} is missing or unreadable; fix the path "
                                      "(Image > Replace) or pack the image")
                 if (problem := transform_problem(record)) is not None:
-                    raise ValueError(f"{where} cannot be re-baked: {problem}; move its Image Texture node and "
-                                     "coordinates out of the group, or bake the transform into the image first")
+                    raise ValueError(f"{where} cannot be re-baked: {problem}")
                 records.setdefault((image.as_pointer(), bake_kind(record)), record)
             for record in reading.left_as_is:
                 name = reading.material.name if reading.material else "(none)"

@@ -692,6 +692,35 @@ def test_a_texture_transform_is_baked_into_the_new_image():
     np.testing.assert_allclose(pixels_of(result.image)[..., :3], np.roll(orm, -4, axis=1), atol=ONE_STEP)
 
 
+@pytest.mark.parametrize("occlusion_offset, layouts", [((0.5, 0.0, 0.0), 1), ((0.25, 0.0, 0.0), 2)])
+def test_one_image_through_different_texture_transforms_is_refused_before_the_run(occlusion_offset, layouts):
+    # The glTF importer reads an occlusion-roughness-metallic image with two nodes, each through a Mapping node of
+    # its own. Equal values are one layout, baked into one new image; different ones are two layouts that one new
+    # image cannot hold (both nodes of a copy would read it): refused before the run, not baked half right.
+    from perceptual_uv.bridge.material_copy import read_maps
+
+    obj, material = quad()
+    image = new_image("orm_twice", 8, np.random.default_rng(7).random((8, 8, 3)))
+    tree = material.node_tree
+    metal_rough = add_orm(material, image)
+    occlusion = tree.nodes.new("ShaderNodeTexImage")
+    occlusion.image = image
+    separate = tree.nodes.new("ShaderNodeSeparateColor")
+    tree.links.new(occlusion.outputs["Color"], separate.inputs["Color"])
+    (group_output,) = [node for node in tree.nodes if node.type == "GROUP"]
+    tree.links.new(separate.outputs["Red"], group_output.inputs["Occlusion"])  # replaces add_orm's own link
+    add_mapping(material, metal_rough, location=(0.5, 0.0, 0.0))
+    add_mapping(material, occlusion, location=occlusion_offset)
+    (record,) = read_object_materials(obj, source_uv="UVMap")[0].maps
+    assert len(record.nodes) == 2
+    if layouts == 1:
+        records, _ = read_maps([obj], "UVMap", image)
+        assert [r.image for r in records] == [image]
+    else:
+        with pytest.raises(ValueError, match="2 Image Texture nodes read it through 2 different texture transforms"):
+            read_maps([obj], "UVMap", image)
+
+
 def test_the_copy_of_a_transformed_map_reads_the_new_image_without_the_transform():
     obj = pbr_grid()
     material = obj.material_slots[0].material
