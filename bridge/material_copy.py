@@ -126,6 +126,13 @@ def read_maps(objects, source_uv, loss_image):
                                      "(Image > Replace) or pack the image")
                 if (problem := transform_problem(record)) is not None:
                     raise ValueError(f"{where} cannot be re-baked: {problem}")
+                others = [drives for drives in record.drives if drives != "normal_tangent"]
+                if "normal_tangent" in record.drives and others:
+                    # A tangent-space normal map is re-expressed in the new UV map's frame; the other uses need the
+                    # values as they are: one new image cannot be both.
+                    raise ValueError(f"image '{image.name}' of material '{reading.material.name}' is read both as a "
+                                     f"tangent-space normal map and as {', '.join(others)}: one new image cannot hold "
+                                     "both; give the normal map an image of its own")
                 records.setdefault((image.as_pointer(), bake_kind(record)), record)
             for record in reading.left_as_is:
                 name = reading.material.name if reading.material else "(none)"

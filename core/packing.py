@@ -154,8 +154,8 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
         else:
             density, best = density * 1.05, larger
     if best is None:
-        raise ValueError(f"the charts do not fit a {resolution} px image with a {margin} px margin: lower the margin or "
-                         "give the image more pixels (a higher cost or resolution)")
+        raise ValueError(f"the charts do not fit a {resolution} px image with a {margin} px margin: lower the "
+                         "margin or give the image more pixels (a higher cost or resolution)")
     for step in range(1, 5):
         candidate = too_dense / 1.01 ** step
         if candidate <= density:

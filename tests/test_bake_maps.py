@@ -721,6 +721,20 @@ def test_one_image_through_different_texture_transforms_is_refused_before_the_ru
             read_maps([obj], "UVMap", image)
 
 
+def test_one_image_as_colour_and_as_tangent_normal_map_is_refused_before_the_run():
+    # The normal map's use needs the values re-expressed in the new UV map's tangent frame, the colour's as they
+    # are: one new image cannot serve both (09_texture_transform of glTF-Blender-IO reads one image in every slot).
+    from perceptual_uv.bridge.material_copy import read_maps
+
+    obj, material = quad()
+    image = new_image("both", 8, np.random.default_rng(8).random((8, 8, 3)))
+    texture = add_normal_map(material, image)
+    principled = material.node_tree.nodes["Principled BSDF"]
+    material.node_tree.links.new(texture.outputs["Color"], principled.inputs["Base Color"])
+    with pytest.raises(ValueError, match="read both as a tangent-space normal map and as base_color"):
+        read_maps([obj], "UVMap", image)
+
+
 def test_the_copy_of_a_transformed_map_reads_the_new_image_without_the_transform():
     obj = pbr_grid()
     material = obj.material_slots[0].material
@@ -798,7 +812,8 @@ def test_a_material_without_a_base_colour_image_is_optimized_on_its_other_maps(w
     left = detail_on_the_left(64, rng)[..., None]
     if where == "normal":
         tilt = np.stack([0.5 + 0.3 * rng.random((64, 64)), 0.5 + 0.3 * rng.random((64, 64)), np.ones((64, 64))], -1)
-        detail = add_normal_map(material, new_image("bumps_alone", 64, left * tilt + (1 - left) * np.array([0.5, 0.5, 1.0])))
+        flat_normal = np.array([0.5, 0.5, 1.0])
+        detail = add_normal_map(material, new_image("bumps_alone", 64, left * tilt + (1 - left) * flat_normal))
     else:
         orm = np.full((64, 64, 3), 0.5)
         orm[..., 1] = left[..., 0] * rng.random((64, 64)) + (1 - left[..., 0]) * 0.5
