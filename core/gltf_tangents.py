@@ -123,13 +123,12 @@ def repair_tangents(path):
                 continue
             xyz = tangents[:, :3].astype(np.float64)
             length = np.linalg.norm(xyz, axis=1)
-            finite = np.isfinite(xyz).all(axis=1) & np.isfinite(tangents[:, 3])
-            bad = ~finite | (np.abs(length - 1.0) > _UNIT_TOLERANCE) | (np.abs(np.abs(tangents[:, 3]) - 1.0) > 0)
+            has_direction = np.isfinite(xyz).all(axis=1) & (length > _UNIT_TOLERANCE)
+            bad = ~has_direction | (np.abs(length - 1.0) > _UNIT_TOLERANCE) | ~(np.abs(tangents[:, 3]) == 1.0)
             if not bad.any():
                 continue
             rows = np.nonzero(bad)[0]
-            degenerate = rows[~finite[rows] | ~(length[rows] > _UNIT_TOLERANCE)]
-            scalable = rows[finite[rows] & (length[rows] > _UNIT_TOLERANCE)]
+            degenerate, scalable = rows[~has_direction[rows]], rows[has_direction[rows]]
             tangents[scalable, :3] = xyz[scalable] / length[scalable, None]
             if len(degenerate):
                 normals = _float_rows(data, document, bin_offset, attributes["NORMAL"], 3) \
