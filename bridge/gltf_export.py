@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core.gltf_tangents import repair_tangents
 from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
-from .material import material_maps, read_material
+from .material import material_maps, read_material, render_uv_name
 
 __all__ = ["export_glb", "EXPORT_OPTIONS"]
 
@@ -88,7 +88,7 @@ def _uv_maps_read_as_they_are(mesh, users, uv_map, copy_of):
     """The UV maps of ``mesh`` other than ``uv_map`` through which the materials its users are exported with
     (``copy_of`` maps an original to its copy) read a map the run left as it is (an occlusion map on a second UV
     map, say), in the mesh's order."""
-    render = next((layer.name for layer in mesh.uv_layers if layer.active_render), None)
+    render = render_uv_name(mesh)
     read = set()
     for material in {copy_of.get(slot.material, slot.material) for obj in users for slot in obj.material_slots}:
         reading = read_material(material, source_uv=uv_map, render_uv=render)

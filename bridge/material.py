@@ -13,7 +13,8 @@ import math
 
 from .material_roles import MaterialReading, build_map, socket_drives
 
-__all__ = ["read_material", "material_maps", "read_object_materials", "base_color_image_node", "loss_image_nodes"]
+__all__ = ["read_material", "material_maps", "read_object_materials", "base_color_image_node", "loss_image_nodes",
+           "render_uv_name"]
 
 GLTF_OUTPUT_GROUP_PREFIXES = ("glTF Material Output", "glTF Settings")
 # A colour linked straight into a shader socket renders as emission; shader nodes on the way set their own labels.
@@ -306,9 +307,16 @@ def read_object_materials(obj, *, source_uv=None):
     layers = obj.data.uv_layers
     if not layers:
         raise ValueError(f"'{obj.name}' has no UV map")
-    render = next((layer.name for layer in layers if layer.active_render), layers[0].name)
     source_uv = source_uv if source_uv is not None else layers.active.name
+    render = render_uv_name(obj.data)
     return [read_material(slot.material, source_uv=source_uv, render_uv=render) for slot in obj.material_slots]
+
+
+def render_uv_name(mesh):
+    """The UV map an Image Texture or Normal Map node with an empty UV map name reads on ``mesh``: the one
+    active for rendering, else the first; None if the mesh has none."""
+    layers = mesh.uv_layers
+    return next((layer.name for layer in layers if layer.active_render), layers[0].name if len(layers) else None)
 
 
 def base_color_image_node(material):

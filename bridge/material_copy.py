@@ -15,7 +15,7 @@ import bpy
 import numpy as np
 
 from .image_file import image_is_float, image_size
-from .material import material_maps, read_material, read_object_materials
+from .material import material_maps, read_material, read_object_materials, render_uv_name
 
 __all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "original_materials", "resolve_source_uv", "read_maps", "loss_planes_of",
            "iter_loss_planes_of", "image_side", "image_stem", "map_resolution", "memory_resolution",
@@ -27,11 +27,6 @@ MAX_RESOLUTION = 16384  # the largest
 COPY_PROPERTY = "perceptual_uv_source"
 
 
-def _render_uv(obj):
-    layers = obj.data.uv_layers
-    return next((layer.name for layer in layers if layer.active_render), layers[0].name if layers else None)
-
-
 def _copies_read(objects):
     """{UV map: [(object, slot number, copy)]} for the slots holding a material copy made by an earlier run."""
     found = {}
@@ -40,7 +35,7 @@ def _copies_read(objects):
             material = slot.material
             if material is None or COPY_PROPERTY not in material:
                 continue
-            for record in material_maps(material, render_uv=_render_uv(obj)):
+            for record in material_maps(material, render_uv=render_uv_name(obj.data)):
                 found.setdefault(record.uv_map, []).append((obj, index + 1, material))
     return found
 
@@ -143,7 +138,7 @@ def read_maps(objects, source_uv, loss_image):
               default=None)
     if key is None:
         read_through = sorted({str(record.uv_map) for obj in objects for slot in obj.material_slots
-                               for record in material_maps(slot.material, render_uv=_render_uv(obj))
+                               for record in material_maps(slot.material, render_uv=render_uv_name(obj.data))
                                if record.image == loss_image})
         where = f" (it is read through {', '.join(repr(uv) for uv in read_through)})" if read_through else ""
         usable = len(read_through) == 1 and all(read_through[0] in obj.data.uv_layers for obj in objects)
@@ -314,7 +309,7 @@ def material_copies(objects, baked, uv_name, source_uv, created):
 
     copies = {}
     for obj in objects:
-        render_uv = _render_uv(obj)
+        render_uv = render_uv_name(obj.data)
         readings = read_object_materials(obj, source_uv=source_uv)
         for index, (slot, reading) in enumerate(zip(obj.material_slots, readings)):
             material = slot.material

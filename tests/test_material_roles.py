@@ -551,6 +551,21 @@ def test_object_reading_fills_in_the_render_uv_map(blender):
         read_object_materials(None)
 
 
+
+@bpy_tests
+def test_render_uv_name_is_the_render_uv_map_else_the_first(blender):
+    from perceptual_uv.bridge.material import render_uv_name
+
+    mesh = blender.data.meshes.new("quad")
+    mesh.from_pydata([(0, 0, 0), (1, 0, 0), (1, 1, 0)], [], [(0, 1, 2)])
+    assert render_uv_name(mesh) is None
+    mesh.uv_layers.new(name="UVMap")
+    mesh.uv_layers.new(name="Lightmap")
+    assert render_uv_name(mesh) == "UVMap"  # the first map made is the render one
+    mesh.uv_layers["Lightmap"].active_render = True
+    mesh.uv_layers.active = mesh.uv_layers["UVMap"]  # the active (edited) map does not change it
+    assert render_uv_name(mesh) == "Lightmap"
+
 # ---- the shared glTF models ---------------------------------------------------------------------------------
 
 _NORMAL = ("normal_tangent", (("RGB", "normal_tangent"),))
