@@ -4,7 +4,11 @@
 Every transfer goes through ``foreach_get``/``foreach_set``; there is no Python loop over vertices, loops or
 triangles. Reading never changes Blender data; writing only ever adds a new UV map.
 """
+import contextlib
+import os
 import pathlib
+import sys
+import tempfile
 
 import bpy
 import numpy as np
@@ -43,19 +47,84 @@ def import_model(path):
                          f"{', '.join(MODEL_SUFFIXES)}")
     if not path.is_file():
         raise ValueError(f"model file not found: {path}")
-    try:
-        if suffix == ".blend":
-            bpy.ops.wm.open_mainfile(filepath=str(path))
-        else:
-            # read_homefile keeps the preferences (and so the enabled extensions), unlike read_factory_settings
-            bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
-            if suffix == ".obj":
-                bpy.ops.wm.obj_import(filepath=str(path))
-            else:
-                bpy.ops.import_scene.gltf(filepath=str(path))
-    except RuntimeError as error:
-        raise ValueError(f"could not load {path}: {str(error).strip()}") from error
+    with tempfile.TemporaryFile() as printed, tempfile.TemporaryFile() as errors:
+        try:
+            with _output_to(1, printed), _output_to(2, errors):
+                if suffix == ".blend":
+                    bpy.ops.wm.open_mainfile(filepath=str(path))
+                else:
+                    # read_homefile keeps the preferences (and so the enabled extensions), unlike
+                    # read_factory_settings
+                    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+                    if suffix == ".obj":
+                        bpy.ops.wm.obj_import(filepath=str(path))
+                    else:
+                        bpy.ops.import_scene.gltf(filepath=str(path))
+        except RuntimeError as error:
+            messages = _read_all(printed) + _read_all(errors)
+            raise ValueError(f"could not load {path}: {_loader_failure(error, suffix, messages)}") from error
+        _write_all(1, _read_all(printed))
+        _write_all(2, _read_all(errors))
     return sorted(bpy.context.scene.objects, key=lambda obj: obj.name)
+
+
+_LOADERS = {".blend": "Blender", ".obj": "the OBJ importer", ".gltf": "the glTF importer", ".glb": "the glTF importer"}
+
+
+def _loader_failure(error, suffix, messages):
+    """One line for a loader's failure: Blender's own message as it is, or, where a Python importer raised (its
+    traceback is in the message), the exception it ended with and a file that keeps what the loader printed
+    (``messages``, bytes)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    if not any("Traceback (most recent call last)" in line for line in lines):
+        return " ".join(lines)
+    raised = [line for line in lines if not line.startswith(("Location:", "File ", "^", "~", "[Previous line"))]
+    handle, kept = tempfile.mkstemp(prefix="perceptual_uv-import-", suffix=".txt")
+    with os.fdopen(handle, "wb") as out:
+        out.write(messages or str(error).encode())
+    check = " (the Khronos glTF validator tells where)" if suffix in (".gltf", ".glb") else ""
+    return (f"{_LOADERS[suffix]} failed on it ({raised[-1]}): the file is probably invalid{check}; the importer's "
+            f"messages are in {kept}")
+
+
+@contextlib.contextmanager
+def _output_to(descriptor, file):
+    """Send what the process writes to ``descriptor`` (1 or 2: Blender logs a failing importer's traceback to
+    both itself) to ``file`` meanwhile; nothing is redirected where the process has no such stream (Blender's
+    interface on Windows)."""
+    stream = sys.stdout if descriptor == 1 else sys.stderr
+    if stream is not None:
+        stream.flush()
+    try:
+        saved = os.dup(descriptor)
+    except OSError:
+        yield
+        return
+    try:
+        os.dup2(file.fileno(), descriptor)
+        try:
+            yield
+        finally:
+            if stream is not None:
+                stream.flush()
+            os.dup2(saved, descriptor)
+    finally:
+        os.close(saved)
+
+
+def _read_all(file):
+    file.seek(0)
+    return file.read()
+
+
+def _write_all(descriptor, data):
+    """Write ``data`` (bytes) to the process's ``descriptor`` as it was captured."""
+    stream = sys.stdout if descriptor == 1 else sys.stderr
+    if stream is not None:
+        stream.flush()
+    view = memoryview(data)
+    while view:
+        view = view[os.write(descriptor, view):]
 
 
 def _mesh_of(obj):

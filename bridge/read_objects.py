@@ -24,7 +24,8 @@ def target_problem(obj):
         return (f"'{block.name}' is linked from the library '{block.library.filepath}' and cannot be changed: make it "
                 "local first (Object > Relations > Make Local)")
     if not obj.data.uv_layers:
-        return f"Mesh '{obj.data.name}' has no UV map: unwrap it first"
+        mesh = "" if obj.data.name == obj.name else f" (mesh '{obj.data.name}')"
+        return f"Object '{obj.name}'{mesh} has no UV map: unwrap it first"
     if not any(loss_image_nodes(slot.material for slot in obj.material_slots)):
         return (f"Object '{obj.name}' has no material that reads an image texture through a UV map: there is no "
                 "texture to optimize for")

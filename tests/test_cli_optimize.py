@@ -91,6 +91,39 @@ def test_file_without_texture_is_refused_in_one_line(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plain.obj"]
 
 
+
+def test_a_gltf_its_importer_fails_on_is_refused_in_one_line(tmp_path):
+    """An index past the last vertex: Blender's glTF importer raises IndexError and logs its traceback to both
+    streams; the CLI prints one line naming the exception and keeps the importer's messages in a file."""
+    import base64
+    import struct
+
+    buffer = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, 0) + struct.pack("<3H", 0, 1, 255) + b"\0\0"
+    gltf = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+            "buffers": [{"byteLength": len(buffer),
+                         "uri": "data:application/octet-stream;base64," + base64.b64encode(buffer).decode()}],
+            "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36},
+                            {"buffer": 0, "byteOffset": 36, "byteLength": 6}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                           "min": [0, 0, 0], "max": [1, 1, 0]},
+                          {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}]}
+    model = tmp_path / "bad.gltf"
+    model.write_text(json.dumps(gltf))
+
+    result = run_cli("optimize", str(model), "--out", str(tmp_path / "o.glb"))
+
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith(f"perceptual_uv: error: could not load {model}: the glTF importer failed on it (IndexError")
+    kept = pathlib.Path(line.rsplit(" ", 1)[1])
+    try:
+        assert "Traceback (most recent call last)" in kept.read_text() and "IndexError" in kept.read_text()
+    finally:
+        kept.unlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.gltf"]
+
 # The triangle-wise stage's first line: the signal lands in that stage (on this small patch the whole stage can take
 # less than half a second). The mesh-wise stage's first line and a few hundredths of a second: the signal lands
 # while a fit iterates in its thread, which a cancelled run once left running into the interpreter's shutdown

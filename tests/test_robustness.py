@@ -150,6 +150,7 @@ def test_no_uv_map_is_refused_by_poll_and_pipeline():
     obj = textured_grid()
     obj.data.uv_layers.remove(obj.data.uv_layers["UVMap"])
     assert "has no UV map: unwrap it first" in target_problem(obj)
+    assert target_problem(obj).startswith(f"Object '{obj.name}'")  # the name --object and the outliner show
     refused([obj], match="has no UV map")
 
 
