@@ -18,7 +18,7 @@ import bpy
 from ..core.atomic import atomic_path
 from ..core.progress import format_seconds
 
-__all__ = ["textured_objects", "optimize_file", "evaluate_file"]
+__all__ = ["textured_objects", "texture_groups", "optimize_file", "combined_report", "evaluate_file"]
 
 
 # Longest time the CLI stays silent during a run.
@@ -30,25 +30,46 @@ def _log(message):
 
 
 def textured_objects(object_name=None):
-    """The mesh objects of the scene that show one image texture: ``object_name`` alone, or all that share it.
-
-    The texture is the one that frames a run (:func:`.material.loss_image_nodes`: the base colour's, or when no
-    mesh has a base-colour image the largest map's); meshes without it (an armature's bone shape, a helper, an
-    untextured part beside textured ones) are not part of the model.
+    """The mesh objects of the scene that show one image texture: ``object_name`` alone, or all that share it
+    (:func:`texture_groups`).
 
     Raises
     ------
     ValueError
         No such object, no textured mesh, or meshes with different textures (the message lists them).
     """
-    from .material import loss_image_nodes
-
     if object_name is not None:
         obj = bpy.data.objects.get(object_name)
         if obj is None:
             names = ", ".join(sorted(o.name for o in bpy.data.objects if o.type == "MESH"))
             raise ValueError(f"no object '{object_name}' in the file (meshes: {names or 'none'})")
         return [obj]
+    groups = texture_groups()
+    if len(groups) > 1:
+        listing = "; ".join(f"{image.name}: {', '.join(o.name for o in objs)}" for image, objs in groups)
+        raise ValueError(f"the meshes use {len(groups)} different textures ({listing}); pick one with --object")
+    return groups[0][1]
+
+
+def texture_groups():
+    """The mesh objects of the scene grouped by the image texture they show, in the images' name order.
+
+    The texture is the one that frames a run (:func:`.material.loss_image_nodes`: the base colour's, or when no
+    mesh has a base-colour image the largest map's), a mesh's the one of its first slot that has one; meshes
+    without it (an armature's bone shape, a helper, an untextured part beside textured ones) are not part of the
+    model.
+
+    Returns
+    -------
+    list of (bpy.types.Image, list of bpy.types.Object)
+
+    Raises
+    ------
+    ValueError
+        No mesh of the scene shows an image texture.
+    """
+    from .material import loss_image_nodes
+
     meshes = [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]
     slots = [(obj, slot.material) for obj in meshes for slot in obj.material_slots]
     first_image = {}  # each mesh in the group of its first slot's texture
@@ -57,14 +78,11 @@ def textured_objects(object_name=None):
             first_image.setdefault(obj.name, (obj, node.image))
     groups = {}
     for obj, image in first_image.values():
-        groups.setdefault(image.name, []).append(obj)
+        groups.setdefault(image.name, (image, []))[1].append(obj)
     if not groups:
         raise ValueError("no mesh in the file has a material that reads an image texture through a UV map: there "
                          "is no texture to optimize for")
-    if len(groups) > 1:
-        listing = "; ".join(f"{image}: {', '.join(o.name for o in objs)}" for image, objs in sorted(groups.items()))
-        raise ValueError(f"the meshes use {len(groups)} different textures ({listing}); pick one with --object")
-    return next(iter(groups.values()))
+    return [groups[name] for name in sorted(groups)]
 
 
 class _ProgressLines:
@@ -127,42 +145,43 @@ def _writable_folder(folder):
 
 
 def optimize_file(args):
-    """``optimize``: see DESIGN's CLI contract; ``args`` comes from :func:`perceptual_uv.cli.parse_args`."""
+    """``optimize``: see DESIGN's CLI contract; ``args`` comes from :func:`perceptual_uv.cli.parse_args`.
+
+    Without ``--object``, a file whose meshes show several textures (a material set per part) gets one run per
+    texture (:func:`texture_groups`), one after the other, into one output; every run's refusals come before the
+    first run starts, and the report is :func:`combined_report` of theirs.
+    """
     from .mesh_io import import_model
-    from .pipeline import Progress, optimize_objects
 
     out = pathlib.Path(args.out).resolve()
     images_dir = _writable_folder(out.parent)  # checked before the (long) run, not after it
     if args.report:
         _writable_folder(pathlib.Path(args.report).resolve().parent)
     import_model(args.input)
-    objects = textured_objects(args.object)
-    pipeline = optimize_objects(objects, args.settings, source_uv=args.uv, output_dir=str(images_dir))
+    groups = [(None, textured_objects(args.object))] if args.object is not None else texture_groups()
+    if len(groups) > 1:
+        _check_groups([objects for _, objects in groups], args.uv)
+    runs, saved = [], []
     try:
-        with _ProgressLines() as lines:
-            while True:
-                progress: Progress = next(pipeline)
-                if getattr(args, "interrupted", None) is not None and args.interrupted.is_set():
-                    raise KeyboardInterrupt  # a signal whose KeyboardInterrupt a numba compile swallowed
-                lines.update(progress)
-    except StopIteration as finished:
-        result = finished.value
-    except BaseException:
-        pipeline.close()
-        raise
-    for note in result.report.get("notes", []):
-        _log(f"note: {note}")
-    for warning in result.report.get("warnings", []):
-        _log(f"warning: {warning}")
-    report = dict(result.report, input=str(args.input), output=str(out))
-    image_file = report.get("image_file")
-    try:
+        for number, (image, objects) in enumerate(groups, start=1):
+            if len(groups) > 1:
+                _log(f"texture {number} of {len(groups)}: '{image.name}' on {', '.join(obj.name for obj in objects)}")
+            result = _run_pipeline(objects, args, images_dir)
+            runs.append((objects, result))
+            saved += _saved_files(result.report)
+            for note in result.report.get("notes", []):
+                _log(f"note: {note}")
+            for warning in result.report.get("warnings", []):
+                _log(f"warning: {warning}")
+        reports = [result.report for _, result in runs]
+        report = dict(reports[0] if len(reports) == 1 else combined_report(reports), input=str(args.input),
+                      output=str(out))
         with atomic_path(out) as temporary:
             try:
                 if out.suffix.lower() == ".glb":
                     from .gltf_export import export_glb
 
-                    export_glb(objects, result, temporary)
+                    export_glb(runs, temporary)
                 else:
                     bpy.ops.wm.save_as_mainfile(filepath=str(temporary), copy=True, relative_remap=True)
             except RuntimeError as error:  # Blender's save and export report I/O failures this way
@@ -172,21 +191,128 @@ def optimize_file(args):
             with atomic_path(args.report) as temporary:
                 temporary.write_text(json.dumps(report, indent=2) + "\n")
     except OSError as error:
-        if image_file:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(image_file)
+        _remove_files(saved)
         raise ValueError(f"could not write the output: {error}") from None
     except BaseException:
-        if image_file:
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(image_file)
+        _remove_files(saved)
         raise
     print(f"result: {out}")
-    if image_file:
-        print(f"image:  {image_file}")
+    for _, result in runs:
+        if result.report.get("image_file"):
+            print(f"image:  {result.report['image_file']}")
     if args.report:
         print(f"report: {pathlib.Path(args.report).resolve()}")
     return report
+
+
+def _check_groups(groups, source_uv):
+    """Every refusal of the runs on ``groups`` that needs no mesh reading, before the first starts: one that
+    fails after others have run would have cost their time for nothing."""
+    from .material_copy import read_maps
+    from .pipeline import check_objects
+    from .read_objects import source_image
+
+    for objects in groups:
+        objects, _, group_uv = check_objects(objects, source_uv)
+        read_maps(objects, group_uv, source_image(objects))
+
+
+def _run_pipeline(objects, args, images_dir):
+    """Drive one pipeline run to its end with progress lines; returns its result. A cancel or an error takes
+    away what the run made (the pipeline's own clean-up) and is raised."""
+    from .pipeline import Progress, optimize_objects
+
+    pipeline = optimize_objects(objects, args.settings, source_uv=args.uv, output_dir=str(images_dir))
+    try:
+        with _ProgressLines() as lines:
+            while True:
+                progress: Progress = next(pipeline)
+                if getattr(args, "interrupted", None) is not None and args.interrupted.is_set():
+                    raise KeyboardInterrupt  # a signal whose KeyboardInterrupt a numba compile swallowed
+                lines.update(progress)
+    except StopIteration as finished:
+        return finished.value
+    except BaseException:
+        pipeline.close()
+        raise
+
+
+def _saved_files(report):
+    """The image files a run saved (every new map's), from its report."""
+    files = [entry.get("new_image_file") for entry in report.get("maps", [])] + [report.get("image_file")]
+    return list(dict.fromkeys(path for path in files if path))
+
+
+def _remove_files(paths):
+    for path in paths:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+
+
+_SUMMED = ("faces", "vertices", "optimized_triangles", "skipped_triangles", "unevaluated_triangles",
+           "flipped_triangles", "restored_charts", "stacked_charts")
+_SETTINGS = ("epsilon", "target_cost", "cost_measure", "seed", "evaluations_per_triangle")
+
+
+def combined_report(reports):
+    """The report of one ``optimize`` over several textures, from each texture's run report.
+
+    ``textures`` holds the runs' reports as they are (each with its ``resolution``, ``relative_cost``, ``image``,
+    ...); the top level has what the file as a whole has: the objects, the counts and times summed, the settings,
+    ``triangles_within_bound`` over all optimized triangles, every map (``maps``) with the memory (``memory_ratio``,
+    ``image_memory`` {``before``, ``after``} in raw bytes) and file ratios over all of them, ``images`` and
+    ``image_files`` per texture, ``uv_map`` when the runs share its name (else None), and the notes and warnings,
+    each prefixed with its texture.
+
+    Parameters
+    ----------
+    reports : sequence of dict
+        The runs' reports (:class:`.pipeline.PipelineResult`), in run order.
+
+    Returns
+    -------
+    dict
+    """
+    maps = [entry for report in reports for entry in report["maps"]]
+    before = sum(entry["raw_bytes_before"] for entry in maps)
+    after = sum(entry["raw_bytes_after"] for entry in maps)
+    files_before = [entry["file_bytes_before"] for entry in maps]
+    files_after = [entry["file_bytes_after"] for entry in maps]
+    optimized = sum(report["optimized_triangles"] for report in reports)
+    times = {}
+    for report in reports:
+        for key, value in report["times_s"].items():
+            times[key] = round(times.get(key, 0.0) + value, 3)
+    overlaps = {}
+    for report in reports:
+        for key, value in report["overlapping_pairs"].items():
+            overlaps[key] = overlaps.get(key, 0) + value
+    uv_maps = {report["uv_map"] for report in reports}
+
+    def labelled(key):  # by the texture's input image (the first map's)
+        return [f"texture '{report['maps'][0]['image']}': {line}" for report in reports
+                for line in report.get(key, [])]
+
+    return {
+        "objects": [name for report in reports for name in report["objects"]],
+        **{key: sum(report[key] for report in reports) for key in _SUMMED},
+        **{key: reports[0][key] for key in _SETTINGS},
+        "times_s": times,
+        "overlapping_pairs": overlaps,
+        "triangles_within_bound": (sum(report["triangles_within_bound"] * report["optimized_triangles"]
+                                       for report in reports) / optimized if optimized else None),
+        "uv_map": uv_maps.pop() if len(uv_maps) == 1 else None,
+        "images": [report["image"] for report in reports],
+        "image_files": [report["image_file"] for report in reports],
+        "maps": maps,
+        "image_memory": {"before": before, "after": after},
+        "memory_ratio": after / before if before else None,
+        "file_ratio": (sum(files_after) / sum(files_before) if None not in files_before + files_after
+                       and sum(files_before) else None),
+        "notes": labelled("notes"),
+        "warnings": labelled("warnings"),
+        "textures": list(reports),
+    }
 
 
 def evaluate_file(args):

@@ -122,15 +122,15 @@ def _export_mesh(mesh, uv_map, copy_of, keep=()):
     return copy
 
 
-def export_glb(objects, result, path):
-    """Export the scene to ``path`` (.glb) with ``objects`` on the run's new UV map, image and materials.
+def export_glb(runs, path):
+    """Export the scene to ``path`` (.glb) with each run's objects on its new UV map, images and materials.
 
     Parameters
     ----------
-    objects : sequence of bpy.types.Object
-        The optimized mesh objects (those that share a mesh included).
-    result : perceptual_uv.bridge.pipeline.PipelineResult
-        ``uv_map`` (the new UV map's name) and ``materials`` (the material copies) of the run.
+    runs : sequence of (sequence of bpy.types.Object, perceptual_uv.bridge.pipeline.PipelineResult)
+        Each run's optimized mesh objects (those that share a mesh included) and its result: ``uv_map`` (the new
+        UV map's name) and ``materials`` (the material copies). One run per texture of the file; no mesh is in
+        two runs.
     path : str or os.PathLike
 
     Raises
@@ -138,18 +138,19 @@ def export_glb(objects, result, path):
     RuntimeError
         Blender's exporter failed (an I/O error, for instance).
     """
-    users, copy_of = _optimized_meshes(objects, result.uv_map, result.materials)
     swapped = []  # (mesh, its name, export copy, objects)
     try:
-        for mesh, mesh_users in users.items():
-            copy = _export_mesh(mesh, result.uv_map, copy_of,
-                                keep=_uv_maps_read_as_they_are(mesh, mesh_users, result.uv_map, copy_of))
-            name = mesh.name
-            swapped.append((mesh, name, copy, mesh_users))
-            mesh.name = f"{name}.perceptual_export_source"
-            copy.name = name  # the glTF mesh keeps the input's name
-            for obj in mesh_users:
-                obj.data = copy
+        for objects, result in runs:
+            users, copy_of = _optimized_meshes(objects, result.uv_map, result.materials)
+            for mesh, mesh_users in users.items():
+                copy = _export_mesh(mesh, result.uv_map, copy_of,
+                                    keep=_uv_maps_read_as_they_are(mesh, mesh_users, result.uv_map, copy_of))
+                name = mesh.name
+                swapped.append((mesh, name, copy, mesh_users))
+                mesh.name = f"{name}.perceptual_export_source"
+                copy.name = name  # the glTF mesh keeps the input's name
+                for obj in mesh_users:
+                    obj.data = copy
         options = dict(EXPORT_OPTIONS, export_tangents=_has_tangent_normal_map())
         bpy.ops.export_scene.gltf(filepath=str(path), **options)
         repair_tangents(path)

@@ -26,8 +26,8 @@ from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_sid
                             resolve_source_uv)
 from .read_objects import READ_STEPS, iter_import_stages, iter_read_objects, one_object_per_mesh, target_problem
 
-__all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "run_to_end", "map_resolution",
-           "COPY_PROPERTY"]
+__all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "check_objects", "run_to_end",
+           "map_resolution", "COPY_PROPERTY"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,6 +118,40 @@ class _Created:
 
 
 
+def check_objects(objects, source_uv=None):
+    """The refusals of :func:`optimize_objects` that come before it reads anything (ValueError with the reason),
+    also for a caller that starts several runs and must refuse before the first.
+
+    Returns
+    -------
+    objects : list of bpy.types.Object
+        One object per mesh (:func:`.read_objects.one_object_per_mesh`).
+    notes : list of str
+        On the objects that share a mesh.
+    source_uv : str
+        The input UV map's name (:func:`resolve_source_uv`).
+    """
+    objects = list(objects)
+    if not objects:
+        raise ValueError("no objects to optimize")
+    for obj in objects:
+        problem = target_problem(obj)
+        if problem:
+            raise ValueError(problem)
+    objects, shared_notes = one_object_per_mesh(objects)
+    source_uv = resolve_source_uv(objects, source_uv)
+    for obj in objects:
+        if source_uv not in obj.data.uv_layers:
+            names = ", ".join(f"'{layer.name}'" for layer in obj.data.uv_layers)
+            raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}' (its UV maps: {names}); the "
+                             "objects optimized together need one UV map of the same name: rename it, or optimize "
+                             "the objects separately (--object, or select them one at a time)")
+        if len(obj.data.uv_layers) >= MAX_UV_MAPS:
+            raise ValueError(f"mesh '{obj.data.name}' already has {len(obj.data.uv_layers)} UV maps, the most "
+                             f"Blender allows; remove one it does not need (Object Data > UV Maps) first")
+    return objects, shared_notes, source_uv
+
+
 def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     """Optimize the UV map of ``objects`` (sharing one base-colour image) and bake every map onto it.
 
@@ -161,24 +195,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
     """
     from .mesh_io import write_uv_layer
 
-    objects = list(objects)
-    if not objects:
-        raise ValueError("no objects to optimize")
-    for obj in objects:
-        problem = target_problem(obj)
-        if problem:
-            raise ValueError(problem)
-    objects, shared_notes = one_object_per_mesh(objects)
-    source_uv = resolve_source_uv(objects, source_uv)
-    for obj in objects:
-        if source_uv not in obj.data.uv_layers:
-            names = ", ".join(f"'{layer.name}'" for layer in obj.data.uv_layers)
-            raise ValueError(f"mesh '{obj.data.name}' has no UV map '{source_uv}' (its UV maps: {names}); the "
-                             "objects optimized together need one UV map of the same name: rename it, or optimize "
-                             "the objects separately (--object, or select them one at a time)")
-        if len(obj.data.uv_layers) >= MAX_UV_MAPS:
-            raise ValueError(f"mesh '{obj.data.name}' already has {len(obj.data.uv_layers)} UV maps, the most "
-                             f"Blender allows; remove one it does not need (Object Data > UV Maps) first")
+    objects, shared_notes, source_uv = check_objects(objects, source_uv)
 
     started = time.perf_counter()
     times = {}

@@ -127,14 +127,30 @@ def _copy_result(source_entry, asset, out, fmt):
     if report_path.is_file():
         report = json.loads(report_path.read_text())
         report.update(input=str(asset.input), output=str(asset.folder / f"{asset.name}.{fmt}"))
-        if report.get("image_file"):
-            report["image_file"] = str(asset.folder / pathlib.Path(report["image_file"]).name)
+        _move_image_paths(report, asset.folder)
         report_path.write_text(json.dumps(report, indent=2) + "\n")
     if asset.folder.exists():
         os.replace(asset.folder, previous_folder(asset.folder))
     os.replace(staging, asset.folder)
     shutil.rmtree(previous_folder(asset.folder), ignore_errors=True)
     return sorted(p.relative_to(out).as_posix() for p in asset.folder.rglob("*") if p.is_file())
+
+
+def _move_image_paths(report, folder):
+    """Point a report's image files (the base colour's, every map's, each texture's of a report over several)
+    into ``folder``, where the asset's outputs were moved."""
+    def moved(path):
+        return str(folder / pathlib.Path(path).name) if path else path
+
+    if "image_file" in report:
+        report["image_file"] = moved(report["image_file"])
+    if "image_files" in report:
+        report["image_files"] = [moved(path) for path in report["image_files"]]
+    for entry in report.get("maps", []):
+        if "new_image_file" in entry:
+            entry["new_image_file"] = moved(entry["new_image_file"])
+    for texture in report.get("textures", []):
+        _move_image_paths(texture, folder)
 
 
 class _Progress:

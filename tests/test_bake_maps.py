@@ -607,7 +607,7 @@ def test_waterbottle_shaded_views_of_the_glb_are_those_of_the_result_in_blender(
     assert result.report["memory_ratio"] == pytest.approx(downscale["memory_ratio"], rel=1e-9)
     in_blender = shaded_views(objects, cameras, screen_pixels=SHADED_PIXELS)
     out = tmp_path / "wb.glb"
-    export_glb(objects, result, out)
+    export_glb([(objects, result)], out)
     reset_blender_scene()
     import_model(out)
     exported = textured_objects()

@@ -202,6 +202,24 @@ def test_summary_counts_memory_and_slowest():
     assert summary["problems"] == [{"asset": "d", "status": "bad_input", "error": "no texture"}]
 
 
+def test_a_report_over_several_textures_points_every_image_into_the_asset_folder(tmp_path):
+    from perceptual_uv.library_batch.run import _move_image_paths
+
+    def texture(stem):
+        return {"image_file": f"/staging/{stem}_perceptual.png",
+                "maps": [{"new_image_file": f"/staging/{stem}_perceptual.png"},
+                         {"new_image_file": f"/staging/{stem}_normal_perceptual.png"}]}
+
+    a, b = texture("a"), texture("b")
+    report = {"image_files": [a["image_file"], b["image_file"]], "maps": a["maps"] + b["maps"], "textures": [a, b]}
+    _move_image_paths(report, tmp_path)
+
+    assert report["image_files"] == [str(tmp_path / "a_perceptual.png"), str(tmp_path / "b_perceptual.png")]
+    assert "image_file" not in report
+    assert [entry["new_image_file"] for entry in report["textures"][1]["maps"]] == [
+        str(tmp_path / "b_perceptual.png"), str(tmp_path / "b_normal_perceptual.png")]
+    assert report["textures"][0]["image_file"] == str(tmp_path / "a_perceptual.png")
+
 def test_orchestrator_does_not_import_bpy():
     code = ("import sys, perceptual_uv.cli, perceptual_uv.library_batch.run; "
             "print('bpy' in sys.modules, 'perceptual_uv.bridge' in sys.modules)")

@@ -144,3 +144,124 @@ def test_sigterm_leaves_no_partial_files(patch_blend, tmp_path, marker, delay):
     assert process.returncode == 130, err[-2000:]
     assert "cancelled" in err
     assert not out.parent.exists() or list(out.parent.iterdir()) == []
+
+
+# ---- a file whose meshes show several textures -----------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def two_textures_blend(spot_obj, tmp_path_factory):
+    """The spot patch and a copy of it beside it whose material reads another image (the texture's negative)."""
+    import numpy as np
+
+    first = spot_patch(spot_obj, above=1.0)
+    second = first.copy()
+    second.data = first.data.copy()
+    second.name = second.data.name = "spot_negative"
+    second.location.x += 3.0
+    bpy.context.scene.collection.objects.link(second)
+    image = bpy.data.images["spot_texture.png"]
+    negative = image.copy()
+    negative.name = "spot_negative.png"
+    pixels = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    pixels = pixels.reshape(-1, 4)
+    pixels[:, :3] = 1.0 - pixels[:, :3]
+    negative.pixels.foreach_set(pixels.ravel())
+    material = first.material_slots[0].material.copy()
+    material.name = "spot_negative"
+    next(node for node in material.node_tree.nodes if node.type == "TEX_IMAGE").image = negative
+    second.data.materials[0] = material
+    image.pack()
+    negative.pack()
+    path = tmp_path_factory.mktemp("in") / "two_textures.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path
+
+
+def test_one_run_per_texture_into_one_glb(two_textures_blend, tmp_path):
+    import gltf_validate
+    from test_gltf_export import buffer_view_bytes, image_size, read_glb
+
+    out, report_path = tmp_path / "out.glb", tmp_path / "report.json"
+    result = run_cli("optimize", str(two_textures_blend), "--out", str(out), "--report", str(report_path),
+                     *FAST_ARGS)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "texture 1 of 2: 'spot_negative.png' on spot_negative" in result.stderr
+    assert "texture 2 of 2: 'spot_texture.png' on spot_triangulated" in result.stderr
+    report = json.loads(report_path.read_text())
+    first, second = report["textures"]
+    assert [first["maps"][0]["image"], second["maps"][0]["image"]] == ["spot_negative.png", "spot_texture.png"]
+    assert report["objects"] == ["spot_negative", "spot_triangulated"]
+    assert report["faces"] == first["faces"] + second["faces"] == 2 * first["faces"]
+    assert report["image_memory"]["before"] == 2 * first["maps"][0]["raw_bytes_before"]
+    gltf, binary = read_glb(out)
+    by_mesh = {mesh["name"]: mesh["primitives"][0] for mesh in gltf["meshes"]}
+    for texture in (first, second):
+        (name,) = texture["objects"]
+        primitive = by_mesh[name]
+        assert "TEXCOORD_0" in primitive["attributes"] and "TEXCOORD_1" not in primitive["attributes"]
+        material = gltf["materials"][primitive["material"]]
+        assert [material["name"]] == texture["materials"]
+        image = gltf["images"][gltf["textures"][material["pbrMetallicRoughness"]["baseColorTexture"]["index"]]
+                               ["source"]]
+        data, _ = buffer_view_bytes(gltf, binary, image["bufferView"])
+        assert image["name"] == texture["image"] and image_size(data) == (texture["resolution"],) * 2
+    if gltf_validate.unavailable() is None:
+        assert gltf_validate.validate(out)["errors"] == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["out.glb", "report.json", "spot_negative_perceptual.png", "spot_texture_perceptual.png"])
+
+
+def test_a_texture_that_would_be_refused_stops_the_file_before_any_run(two_textures_blend, tmp_path):
+    """The second texture's object also reads the first texture on a second slot: refused before the first run,
+    which would otherwise have run for nothing."""
+    code = f"""
+import bpy
+bpy.ops.wm.open_mainfile(filepath={str(two_textures_blend)!r})
+obj = bpy.data.objects["spot_triangulated"]
+obj.data.materials.append(bpy.data.materials["spot_negative"])
+bpy.ops.wm.save_as_mainfile(filepath={str(tmp_path / 'mixed.blend')!r})
+"""
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run_cli("optimize", str(tmp_path / "mixed.blend"), "--out", str(out / "o.glb"), *FAST_ARGS)
+    assert result.returncode == 2
+    assert "[triangle]" not in result.stderr and "texture 1 of" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("perceptual_uv: error: object 'spot_triangulated' uses 2 different images")
+    assert list(out.iterdir()) == []
+
+
+def test_combined_report_sums_counts_and_weighs_the_bound_by_triangles():
+    from perceptual_uv.bridge.batch import combined_report
+
+    def report(image, faces, within, before, after, files, uv_map, notes):
+        return {"objects": [image], "faces": faces, "vertices": faces // 2, "optimized_triangles": faces,
+                "skipped_triangles": 1, "unevaluated_triangles": 0, "flipped_triangles": 2, "restored_charts": 0,
+                "stacked_charts": 1, "epsilon": 0.01, "target_cost": 0.3, "cost_measure": "memory", "seed": 0,
+                "evaluations_per_triangle": 100, "times_s": {"triangle": 1.5, "total": 2.0},
+                "overlapping_pairs": {"total": 3, "within_charts": 1, "between_charts": 2},
+                "triangles_within_bound": within, "uv_map": uv_map, "image": f"{image}_perceptual",
+                "image_file": f"/out/{image}_perceptual.png", "notes": notes, "warnings": [],
+                "maps": [{"image": image, "raw_bytes_before": before, "raw_bytes_after": after,
+                          "file_bytes_before": files[0], "file_bytes_after": files[1]}]}
+
+    a = report("a.png", 100, 0.9, 1000, 250, (400, 100), "PerceptualUV", ["first note"])
+    b = report("b.png", 300, 0.5, 3000, 600, (600, None), "PerceptualUV.001", [])
+
+    combined = combined_report([a, b])
+
+    assert combined["faces"] == 400 and combined["vertices"] == 200 and combined["skipped_triangles"] == 2
+    assert combined["flipped_triangles"] == 4 and combined["stacked_charts"] == 2
+    assert combined["triangles_within_bound"] == pytest.approx((0.9 * 100 + 0.5 * 300) / 400)  # 0.6
+    assert combined["image_memory"] == {"before": 4000, "after": 850}
+    assert combined["memory_ratio"] == pytest.approx(850 / 4000)
+    assert combined["file_ratio"] is None  # one map's file size is unknown
+    assert combined["times_s"] == {"triangle": 3.0, "total": 4.0}
+    assert combined["overlapping_pairs"] == {"total": 6, "within_charts": 2, "between_charts": 4}
+    assert combined["uv_map"] is None  # the runs' UV maps differ in name: each texture's report says which
+    assert combined["images"] == ["a.png_perceptual", "b.png_perceptual"]
+    assert combined["notes"] == ["texture 'a.png': first note"]
+    assert combined["objects"] == ["a.png", "b.png"] and combined["textures"] == [a, b]
+    assert combined_report([a, dict(b, uv_map="PerceptualUV")])["uv_map"] == "PerceptualUV"

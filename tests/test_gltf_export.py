@@ -346,7 +346,7 @@ def test_export_glb_uses_copies_and_leaves_the_scene_as_it_was(empty_scene, tmp_
               "slots": [(s.link, s.material.name) for o in (first, second) for s in o.material_slots]}
 
     out = tmp_path / "box.glb"
-    export_glb([first, second], SimpleNamespace(uv_map="PerceptualUV", materials=[materials["new"]]), out)
+    export_glb([([first, second], SimpleNamespace(uv_map="PerceptualUV", materials=[materials["new"]]))], out)
 
     after = {"meshes": sorted(m.name for m in bpy.data.meshes), "keys": len(bpy.data.shape_keys),
              "actions": len(bpy.data.actions), "uv": [layer.name for layer in mesh.uv_layers],
@@ -404,7 +404,7 @@ def test_a_corner_without_a_tangent_gets_a_unit_one_in_the_glb(empty_scene, tmp_
     empty_scene.collection.objects.link(obj)
     out = tmp_path / "sliver.glb"
 
-    export_glb([obj], SimpleNamespace(uv_map="PerceptualUV", materials=[]), out)
+    export_glb([([obj], SimpleNamespace(uv_map="PerceptualUV", materials=[]))], out)
 
     gltf, binary = read_glb(out)
     (primitive,) = gltf["meshes"][0]["primitives"]
@@ -469,7 +469,7 @@ def test_a_map_left_on_another_uv_map_keeps_its_coordinates_after_the_new_ones(e
     empty_scene.collection.objects.link(obj)
     out = tmp_path / "panel.glb"
 
-    export_glb([obj], SimpleNamespace(uv_map="PerceptualUV", materials=[material]), out)
+    export_glb([([obj], SimpleNamespace(uv_map="PerceptualUV", materials=[material]))], out)
 
     gltf, binary = read_glb(out)
     (primitive,) = gltf["meshes"][0]["primitives"]
