@@ -188,6 +188,8 @@ def build_parser():
     evaluate = commands.add_parser("evaluate", help="perceptual loss of a UV map at several relative costs")
     evaluate.add_argument("input", metavar="IN", type=_existing_model)
     evaluate.add_argument("--uv", required=True, help="UV map to evaluate")
+    evaluate.add_argument("--texture", metavar="IMAGE",
+                          help="evaluate the meshes that show this image (a file whose meshes show several)")
     evaluate.add_argument("--ref-uv", help="UV map of the reference texture (default: the active one)")
     evaluate.add_argument("--costs", type=_costs, default=[0.1, 0.2, 0.3, 0.5])
     evaluate.add_argument("--json", type=pathlib.Path, help="write the results here")

@@ -315,6 +315,22 @@ def combined_report(reports):
     }
 
 
+def _evaluated_group(texture):
+    """The meshes ``evaluate`` measures: those that show the image named ``texture``, or, when None, those of
+    the file's only texture (:func:`texture_groups`)."""
+    groups = texture_groups()
+    listing = "; ".join(f"{image.name}: {', '.join(o.name for o in objs)}" for image, objs in groups)
+    if texture is not None:
+        chosen = [objects for image, objects in groups if image.name == texture]
+        if not chosen:
+            raise ValueError(f"no mesh shows an image '{texture}' (the textures and their meshes: {listing})")
+        return chosen[0]
+    if len(groups) > 1:
+        raise ValueError(f"the meshes use {len(groups)} different textures ({listing}); evaluate one at a time "
+                         "with --texture IMAGE")
+    return groups[0][1]
+
+
 def evaluate_file(args):
     """``evaluate``: q_r at each relative cost and E_iso of a UV map (paper Sec. 5.1), JSON and a plot.
 
@@ -342,7 +358,7 @@ def evaluate_file(args):
     import_model(args.input)
     # A file an optimize run wrote shows the material copies: the evaluation compares against what the run read.
     with original_materials([obj for obj in bpy.context.scene.objects if obj.type == "MESH"]):
-        objects = [obj for obj in textured_objects() if args.uv in obj.data.uv_layers]
+        objects = [obj for obj in _evaluated_group(getattr(args, "texture", None)) if args.uv in obj.data.uv_layers]
         if not objects:
             raise ValueError(f"no textured mesh object in {args.input} has a UV map '{args.uv}'")
         ref_uv = args.ref_uv or objects[0].data.uv_layers.active.name

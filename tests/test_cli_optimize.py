@@ -150,29 +150,29 @@ def test_sigterm_leaves_no_partial_files(patch_blend, tmp_path, marker, delay):
 
 @pytest.fixture(scope="module")
 def two_textures_blend(spot_obj, tmp_path_factory):
-    """The spot patch and a copy of it beside it whose material reads another image (the texture's negative)."""
+    """The spot patch and a copy of it beside it whose material reads another image (the texture mirrored left
+    to right, so that the copy shows other detail)."""
     import numpy as np
 
-    first = spot_patch(spot_obj, above=1.0)
+    first = spot_patch(spot_obj, above=0.9)
     second = first.copy()
     second.data = first.data.copy()
-    second.name = second.data.name = "spot_negative"
+    second.name = second.data.name = "spot_mirrored"
     second.location.x += 3.0
     bpy.context.scene.collection.objects.link(second)
     image = bpy.data.images["spot_texture.png"]
-    negative = image.copy()
-    negative.name = "spot_negative.png"
+    mirrored = image.copy()
+    mirrored.name = "spot_mirrored.png"
+    width, height = image.size
     pixels = np.empty(len(image.pixels), dtype=np.float32)
     image.pixels.foreach_get(pixels)
-    pixels = pixels.reshape(-1, 4)
-    pixels[:, :3] = 1.0 - pixels[:, :3]
-    negative.pixels.foreach_set(pixels.ravel())
+    mirrored.pixels.foreach_set(pixels.reshape(height, width, 4)[:, ::-1].ravel())
     material = first.material_slots[0].material.copy()
-    material.name = "spot_negative"
-    next(node for node in material.node_tree.nodes if node.type == "TEX_IMAGE").image = negative
+    material.name = "spot_mirrored"
+    next(node for node in material.node_tree.nodes if node.type == "TEX_IMAGE").image = mirrored
     second.data.materials[0] = material
     image.pack()
-    negative.pack()
+    mirrored.pack()
     path = tmp_path_factory.mktemp("in") / "two_textures.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path))
     return path
@@ -186,12 +186,12 @@ def test_one_run_per_texture_into_one_glb(two_textures_blend, tmp_path):
     result = run_cli("optimize", str(two_textures_blend), "--out", str(out), "--report", str(report_path),
                      *FAST_ARGS)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert "texture 1 of 2: 'spot_negative.png' on spot_negative" in result.stderr
+    assert "texture 1 of 2: 'spot_mirrored.png' on spot_mirrored" in result.stderr
     assert "texture 2 of 2: 'spot_texture.png' on spot_triangulated" in result.stderr
     report = json.loads(report_path.read_text())
     first, second = report["textures"]
-    assert [first["maps"][0]["image"], second["maps"][0]["image"]] == ["spot_negative.png", "spot_texture.png"]
-    assert report["objects"] == ["spot_negative", "spot_triangulated"]
+    assert [first["maps"][0]["image"], second["maps"][0]["image"]] == ["spot_mirrored.png", "spot_texture.png"]
+    assert report["objects"] == ["spot_mirrored", "spot_triangulated"]
     assert report["faces"] == first["faces"] + second["faces"] == 2 * first["faces"]
     assert report["image_memory"]["before"] == 2 * first["maps"][0]["raw_bytes_before"]
     gltf, binary = read_glb(out)
@@ -209,7 +209,7 @@ def test_one_run_per_texture_into_one_glb(two_textures_blend, tmp_path):
     if gltf_validate.unavailable() is None:
         assert gltf_validate.validate(out)["errors"] == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        ["out.glb", "report.json", "spot_negative_perceptual.png", "spot_texture_perceptual.png"])
+        ["out.glb", "report.json", "spot_mirrored_perceptual.png", "spot_texture_perceptual.png"])
 
 
 def test_a_texture_that_would_be_refused_stops_the_file_before_any_run(two_textures_blend, tmp_path):
@@ -219,7 +219,7 @@ def test_a_texture_that_would_be_refused_stops_the_file_before_any_run(two_textu
 import bpy
 bpy.ops.wm.open_mainfile(filepath={str(two_textures_blend)!r})
 obj = bpy.data.objects["spot_triangulated"]
-obj.data.materials.append(bpy.data.materials["spot_negative"])
+obj.data.materials.append(bpy.data.materials["spot_mirrored"])
 bpy.ops.wm.save_as_mainfile(filepath={str(tmp_path / 'mixed.blend')!r})
 """
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
@@ -265,3 +265,23 @@ def test_combined_report_sums_counts_and_weighs_the_bound_by_triangles():
     assert combined["notes"] == ["texture 'a.png': first note"]
     assert combined["objects"] == ["a.png", "b.png"] and combined["textures"] == [a, b]
     assert combined_report([a, dict(b, uv_map="PerceptualUV")])["uv_map"] == "PerceptualUV"
+
+
+def test_evaluate_measures_one_texture_of_several_at_a_time(two_textures_blend, tmp_path):
+    out = tmp_path / "out.blend"
+    assert run_cli("optimize", str(two_textures_blend), "--out", str(out), *FAST_ARGS).returncode == 0
+
+    unnamed = run_cli("evaluate", str(out), "--uv", "PerceptualUV", "--costs", "0.5", "--screen", "64")
+    assert unnamed.returncode == 2
+    assert unnamed.stderr.strip().splitlines()[-1].endswith("evaluate one at a time with --texture IMAGE")
+    unknown = run_cli("evaluate", str(out), "--uv", "PerceptualUV", "--texture", "nope.png")
+    assert unknown.returncode == 2 and "no mesh shows an image 'nope.png'" in unknown.stderr
+
+    named = [run_cli("evaluate", str(out), "--uv", "PerceptualUV", "--texture", image, "--costs", "0.5",
+                     "--screen", "64", "--json", str(tmp_path / f"{image}.json"))
+             for image in ("spot_texture.png", "spot_mirrored.png")]
+
+    assert [run.returncode for run in named] == [0, 0], named[0].stderr[-2000:] + named[1].stderr[-2000:]
+    q = [json.loads((tmp_path / f"{image}.json").read_text())["points"][0]["q"]
+         for image in ("spot_texture.png", "spot_mirrored.png")]
+    assert all(0 < value < 0.1 for value in q) and q[0] != q[1]  # each measured its own texture and layout
