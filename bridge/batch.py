@@ -212,9 +212,18 @@ def _check_groups(groups, source_uv):
     from .pipeline import check_objects
     from .read_objects import source_image
 
+    shown_by = {}
     for objects in groups:
+        image = source_image(objects)
+        for obj in objects:
+            other = shown_by.setdefault(obj.data.name, (obj, image))
+            if other[1] != image:
+                raise ValueError(f"mesh '{obj.data.name}' is shared by objects that show different textures "
+                                 f"('{other[0].name}' shows '{other[1].name}', '{obj.name}' shows '{image.name}'): "
+                                 "one mesh gets one new UV map; give the objects meshes of their own (Object > "
+                                 "Relations > Make Single User > Object & Data) or optimize one with --object")
         objects, _, group_uv = check_objects(objects, source_uv)
-        read_maps(objects, group_uv, source_image(objects))
+        read_maps(objects, group_uv, image)
 
 
 def _run_pipeline(objects, args, images_dir):

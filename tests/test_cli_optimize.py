@@ -285,3 +285,24 @@ def test_evaluate_measures_one_texture_of_several_at_a_time(two_textures_blend, 
     q = [json.loads((tmp_path / f"{image}.json").read_text())["points"][0]["q"]
          for image in ("spot_texture.png", "spot_mirrored.png")]
     assert all(0 < value < 0.1 for value in q) and q[0] != q[1]  # each measured its own texture and layout
+
+
+def test_a_mesh_shared_by_objects_of_two_textures_is_refused_before_any_run(two_textures_blend, tmp_path):
+    code = f"""
+import bpy
+bpy.ops.wm.open_mainfile(filepath={str(two_textures_blend)!r})
+mirrored = bpy.data.objects["spot_mirrored"]
+mirrored.data = bpy.data.objects["spot_triangulated"].data
+mirrored.material_slots[0].link = "OBJECT"
+mirrored.material_slots[0].material = bpy.data.materials["spot_mirrored"]
+bpy.ops.wm.save_as_mainfile(filepath={str(tmp_path / 'linked.blend')!r})
+"""
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run_cli("optimize", str(tmp_path / "linked.blend"), "--out", str(out / "o.glb"), *FAST_ARGS)
+    assert result.returncode == 2 and "[triangle]" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert "mesh 'spot_triangulated' is shared by objects that show different textures" in last
+    assert "'spot_mirrored' shows 'spot_mirrored.png'" in last and "'spot_triangulated' shows 'spot_texture.png'" in last
+    assert list(out.iterdir()) == []
