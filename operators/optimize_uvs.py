@@ -14,7 +14,8 @@ SLICE_SECONDS = 0.1
 
 def _objects(context):
     """The active object plus the selected meshes that share its texture (one atlas; the base colour's, or the
-    largest map's when there is no base-colour image: ``bridge.material.loss_image_nodes``)."""
+    largest map's when there is no base-colour image: ``bridge.material.loss_image_nodes``), and the other
+    selected meshes, which the run leaves as they are."""
     from ..bridge.material import loss_image_nodes
 
     active = context.active_object
@@ -23,7 +24,17 @@ def _objects(context):
     nodes = list(zip(slots, loss_image_nodes(material for _, material in slots)))
     images = {node.image for (obj, _), node in nodes if obj is active and node is not None}
     sharing = {obj.name for (obj, _), node in nodes if node is not None and node.image in images}
-    return [active, *(obj for obj in candidates if obj.name in sharing)]
+    return ([active, *(obj for obj in candidates if obj.name in sharing)],
+            [obj for obj in candidates if obj.name not in sharing])
+
+
+def _left_out_note(left_out):
+    """What the run tells about selected meshes it leaves as they are, or None."""
+    if not left_out:
+        return None
+    names = ", ".join(f"'{obj.name}'" for obj in left_out)
+    return (f"{names} left as {'it is' if len(left_out) == 1 else 'they are'}: not the texture of the active "
+            "object (optimize each texture with one of its objects active)")
 
 
 class UV_OT_perceptual_optimize(bpy.types.Operator):
@@ -57,7 +68,8 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
             settings = dataclasses.replace(settings, bake_in_background=True)
         if context.mode == "EDIT_MESH":
             bpy.ops.object.mode_set(mode="OBJECT")  # edit-mode meshes hold their data in BMesh until left
-        return optimize_objects(_objects(context), settings)
+        objects, self._left_out = _objects(context)
+        return optimize_objects(objects, settings)
 
     def _restore_mode(self):
         if self._previous_mode == "EDIT_MESH":
@@ -70,8 +82,9 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
         self.report({"INFO"}, f"{report['uv_map']}: {report['resolution']} px image '{report['image']}', {memory}"
                     f"relative texel cost {report['relative_cost']:.2f}, {report['triangles_within_bound']:.0%} of "
                     f"triangles within the loss bound, {report['times_s']['total']:.0f} s")
-        for note in report.get("notes", []):
-            self.report({"INFO"}, note)
+        for note in [*report.get("notes", []), _left_out_note(getattr(self, "_left_out", []))]:
+            if note:
+                self.report({"INFO"}, note)
         for warning in report.get("warnings", []):
             self.report({"WARNING"}, warning)
 

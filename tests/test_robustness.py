@@ -694,3 +694,20 @@ def test_an_operator_run_reads_a_png_texture_without_blender_loading_it(tmp_path
     (entry,) = result.report["maps"]
     assert entry["input_size"] == [64, 64] and entry["raw_bytes_before"] == 64 * 64 * 3
     assert result.uv_map in obj.data.uv_layers and os.path.isfile(entry["new_image_file"])
+
+
+def test_the_operator_names_the_selected_meshes_of_other_textures_it_leaves_as_they_are():
+    from types import SimpleNamespace
+
+    from perceptual_uv.operators.optimize_uvs import _left_out_note, _objects
+
+    first = textured_grid("first")
+    sharing = textured_grid("sharing", image=first.material_slots[0].material.node_tree.nodes["Image Texture"].image)
+    other = textured_grid("other")
+
+    objects, left_out = _objects(SimpleNamespace(active_object=first, selected_objects=[other, first, sharing]))
+
+    assert objects == [first, sharing] and left_out == [other]
+    assert _left_out_note(left_out) == ("'other' left as it is: not the texture of the active object (optimize "
+                                        "each texture with one of its objects active)")
+    assert _left_out_note([]) is None
