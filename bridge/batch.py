@@ -54,9 +54,10 @@ def textured_objects(object_name=None):
 def texture_groups():
     """The mesh objects of the scene grouped by the image texture they show, in the images' name order.
 
-    The texture is the one that frames a run (:func:`.material.loss_image_nodes`: the base colour's, or when no
-    mesh has a base-colour image the largest map's), a mesh's the one of its first slot that has one; meshes
-    without it (an armature's bone shape, a helper, an untextured part beside textured ones) are not part of the
+    The texture is the one that frames a run (:func:`.material.loss_image_nodes`), a mesh's the one of its first
+    slot that has one: the base colour's image, and for meshes none of whose materials has one, their largest
+    map's (a part with a normal or roughness map and a constant colour is a texture of its own); meshes that read
+    no image (an armature's bone shape, a helper, an untextured part beside textured ones) are not part of the
     model.
 
     Returns
@@ -70,12 +71,17 @@ def texture_groups():
     """
     from .material import loss_image_nodes
 
-    meshes = [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]
-    slots = [(obj, slot.material) for obj in meshes for slot in obj.material_slots]
     first_image = {}  # each mesh in the group of its first slot's texture
-    for (obj, _), node in zip(slots, loss_image_nodes(material for _, material in slots)):
-        if node is not None:
-            first_image.setdefault(obj.name, (obj, node.image))
+
+    def add_first_images(meshes):
+        slots = [(obj, slot.material) for obj in meshes for slot in obj.material_slots]
+        for (obj, _), node in zip(slots, loss_image_nodes(material for _, material in slots)):
+            if node is not None:
+                first_image.setdefault(obj.name, (obj, node.image))
+
+    meshes = [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]
+    add_first_images(meshes)
+    add_first_images([obj for obj in meshes if obj.name not in first_image])
     groups = {}
     for obj, image in first_image.values():
         groups.setdefault(image.name, (image, []))[1].append(obj)

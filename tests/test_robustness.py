@@ -711,3 +711,23 @@ def test_the_operator_names_the_selected_meshes_of_other_textures_it_leaves_as_t
     assert _left_out_note(left_out) == ("'other' left as it is: not the texture of the active object (optimize "
                                         "each texture with one of its objects active)")
     assert _left_out_note([]) is None
+
+
+def test_texture_groups_frame_a_part_without_base_colour_by_its_own_largest_map():
+    from perceptual_uv.bridge.batch import texture_groups
+
+    coloured = textured_grid("coloured")
+    plain = textured_grid("plain", image_size=(32, 32), location=(2.0, 0.0, 0.0))
+    tree = plain.material_slots[0].material.node_tree
+    node = tree.nodes["Image Texture"]
+    node.image.colorspace_settings.name = "Non-Color"
+    for link in list(node.outputs["Color"].links):
+        tree.links.remove(link)
+    tree.links.new(node.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Roughness"])
+    untextured = textured_grid("untextured", location=(4.0, 0.0, 0.0))
+    untextured.data.materials[0] = bpy.data.materials.new("untextured_plain")
+
+    groups = texture_groups()
+
+    assert [(image.name, objects) for image, objects in groups] == [
+        ("coloured_texture", [coloured]), ("plain_texture", [plain])]
