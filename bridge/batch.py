@@ -17,6 +17,7 @@ import bpy
 
 from ..core.atomic import atomic_path
 from ..core.progress import format_seconds
+from .texture_parts import merge_parts, remove_parts, split_by_texture
 
 __all__ = ["textured_objects", "texture_groups", "optimize_file", "combined_report", "evaluate_file"]
 
@@ -51,8 +52,9 @@ def textured_objects(object_name=None):
     return groups[0][1]
 
 
-def texture_groups():
-    """The mesh objects of the scene grouped by the image texture they show, in the images' name order.
+def texture_groups(*, exclude=()):
+    """The mesh objects of the scene (but those named in ``exclude``) grouped by the image texture they show, in
+    the images' name order.
 
     The texture is the one that frames a run (:func:`.material.loss_image_nodes`), a mesh's the one of its first
     slot that has one: the base colour's image, and for meshes none of whose materials has one, their largest
@@ -79,7 +81,7 @@ def texture_groups():
             if node is not None:
                 first_image.setdefault(obj.name, (obj, node.image))
 
-    meshes = [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]
+    meshes = [obj for obj in bpy.context.scene.objects if obj.type == "MESH" and obj.name not in exclude]
     add_first_images(meshes)
     add_first_images([obj for obj in meshes if obj.name not in first_image])
     groups = {}
@@ -155,7 +157,8 @@ def optimize_file(args):
 
     Without ``--object``, a file whose meshes show several textures (a material set per part) gets one run per
     texture (:func:`texture_groups`), one after the other, into one output; every run's refusals come before the
-    first run starts, and the report is :func:`combined_report` of theirs.
+    first run starts, and the report is :func:`combined_report` of theirs. An object whose slots show several
+    textures runs as one temporary part per texture (:mod:`.texture_parts`), merged back after the runs.
     """
     from .mesh_io import import_model
 
@@ -164,14 +167,17 @@ def optimize_file(args):
     if args.report:
         _writable_folder(pathlib.Path(args.report).resolve().parent)
     import_model(args.input)
-    groups = [(None, textured_objects(args.object))] if args.object is not None else texture_groups()
-    if len(groups) > 1:
-        _check_groups([objects for _, objects in groups], args.uv)
+    groups, parts = _groups_and_parts(args.object)
+    shown = {part.part.name: f"{part.original.name} (slot{'s' if len(part.slots) > 1 else ''} "
+                             f"{', '.join(str(slot + 1) for slot in part.slots)})" for part in parts}
     runs, saved = [], []
     try:
+        if len(groups) > 1:
+            _check_groups([objects for _, objects in groups], args.uv)
         for number, (image, objects) in enumerate(groups, start=1):
             if len(groups) > 1:
-                _log(f"texture {number} of {len(groups)}: '{image.name}' on {', '.join(obj.name for obj in objects)}")
+                _log(f"texture {number} of {len(groups)}: '{image.name}' on "
+                     f"{', '.join(shown.get(obj.name, obj.name) for obj in objects)}")
             result = _run_pipeline(objects, args, images_dir)
             runs.append((objects, result))
             saved += _saved_files(result.report)
@@ -179,6 +185,9 @@ def optimize_file(args):
                 _log(f"note: {note}")
             for warning in result.report.get("warnings", []):
                 _log(f"warning: {warning}")
+        if parts:
+            runs = _merge_parts(parts, runs, args.settings.epsilon)
+            parts = []
         reports = [result.report for _, result in runs]
         report = dict(reports[0] if len(reports) == 1 else combined_report(reports), input=str(args.input),
                       output=str(out))
@@ -202,6 +211,8 @@ def optimize_file(args):
     except BaseException:
         _remove_files(saved)
         raise
+    finally:
+        remove_parts(parts)
     print(f"result: {out}")
     for _, result in runs:
         if result.report.get("image_file"):
@@ -209,6 +220,61 @@ def optimize_file(args):
     if args.report:
         print(f"report: {pathlib.Path(args.report).resolve()}")
     return report
+
+
+def _groups_and_parts(object_name):
+    """The runs' groups of objects, each with the texture it shows (:func:`texture_groups`; ``object_name``
+    alone when given), and the temporary parts of objects whose slots show several textures
+    (:func:`.texture_parts.split_by_texture`: one run per texture, merged back after the runs). The other users of
+    a split object's mesh (linked duplicates) are in no group: the mesh is optimized once, through its first user."""
+    if object_name is not None:
+        (obj,) = textured_objects(object_name)
+        parts = split_by_texture(obj) if obj.type == "MESH" else []
+        return ([(part.image, [part.part]) for part in parts] if parts else [(None, [obj])]), parts
+    parts, split = [], set()
+    try:
+        for obj in [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]:
+            if obj.data.name not in split:
+                made = split_by_texture(obj)
+                if made:
+                    parts += made
+                    split.add(obj.data.name)
+        groups = texture_groups(exclude={obj.name for obj in bpy.context.scene.objects
+                                         if obj.type == "MESH" and obj.data.name in split})
+    except BaseException:
+        remove_parts(parts)
+        raise
+    return groups, parts
+
+
+def _merge_parts(parts, runs, epsilon):
+    """Move the parts' results onto their objects (:func:`.texture_parts.merge_parts`, which removes the parts)
+    and return ``runs`` with each part replaced by its object and the other users of its mesh, in the runs'
+    objects and their reports."""
+    run_of = {}
+    for objects, result in runs:
+        for obj in objects:
+            run_of[obj.name] = result
+    users = {}
+    for obj in bpy.context.scene.objects:
+        if obj.type == "MESH":
+            users.setdefault(obj.data.name, []).append(obj)
+    originals = {part.part.name: users[part.original.data.name] for part in parts}
+    names = {part.part.name: part.original.name for part in parts}
+    (source_uv,) = {run_of[part.part.name].report["source_uv_map"] for part in parts}
+    merged = []
+    for objects, result in runs:
+        kept = []
+        for obj in objects:
+            for replaced in originals.get(obj.name, [obj]):
+                if replaced not in kept:
+                    kept.append(replaced)
+        result.report["objects"] = list(dict.fromkeys(names.get(name, name) for name in result.report["objects"]))
+        merged.append((kept, result))
+    merge_parts(parts, [run_of[part.part.name].uv_map for part in parts],
+                {material for _, result in runs for material in result.materials}, source_uv=source_uv,
+                epsilon=epsilon)
+    return merged
 
 
 def _check_groups(groups, source_uv):
@@ -309,7 +375,7 @@ def combined_report(reports):
                 for line in report.get(key, [])]
 
     return {
-        "objects": [name for report in reports for name in report["objects"]],
+        "objects": list(dict.fromkeys(name for report in reports for name in report["objects"])),
         **{key: sum(report[key] for report in reports) for key in _SUMMED},
         **{key: reports[0][key] for key in _SETTINGS},
         "times_s": times,

@@ -129,8 +129,8 @@ def export_glb(runs, path):
     ----------
     runs : sequence of (sequence of bpy.types.Object, perceptual_uv.bridge.pipeline.PipelineResult)
         Each run's optimized mesh objects (those that share a mesh included) and its result: ``uv_map`` (the new
-        UV map's name) and ``materials`` (the material copies). One run per texture of the file; no mesh is in
-        two runs.
+        UV map's name) and ``materials`` (the material copies). One run per texture of the file; a mesh whose
+        slots show several textures is in several runs, with one new UV map.
     path : str or os.PathLike
 
     Raises
@@ -138,19 +138,26 @@ def export_glb(runs, path):
     RuntimeError
         Blender's exporter failed (an I/O error, for instance).
     """
+    meshes, copy_of = {}, {}  # mesh: (its new UV map, the objects that use it); original material: its copy
+    for objects, result in runs:
+        users, copies = _optimized_meshes(objects, result.uv_map, result.materials)
+        copy_of.update(copies)
+        for mesh, mesh_users in users.items():
+            uv_map, known = meshes.setdefault(mesh, (result.uv_map, []))
+            if uv_map != result.uv_map:
+                raise ValueError(f"mesh '{mesh.name}' has two new UV maps, '{uv_map}' and '{result.uv_map}'")
+            known.extend(obj for obj in mesh_users if obj not in known)
     swapped = []  # (mesh, its name, export copy, objects)
     try:
-        for objects, result in runs:
-            users, copy_of = _optimized_meshes(objects, result.uv_map, result.materials)
-            for mesh, mesh_users in users.items():
-                copy = _export_mesh(mesh, result.uv_map, copy_of,
-                                    keep=_uv_maps_read_as_they_are(mesh, mesh_users, result.uv_map, copy_of))
-                name = mesh.name
-                swapped.append((mesh, name, copy, mesh_users))
-                mesh.name = f"{name}.perceptual_export_source"
-                copy.name = name  # the glTF mesh keeps the input's name
-                for obj in mesh_users:
-                    obj.data = copy
+        for mesh, (uv_map, mesh_users) in meshes.items():
+            copy = _export_mesh(mesh, uv_map, copy_of,
+                                keep=_uv_maps_read_as_they_are(mesh, mesh_users, uv_map, copy_of))
+            name = mesh.name
+            swapped.append((mesh, name, copy, mesh_users))
+            mesh.name = f"{name}.perceptual_export_source"
+            copy.name = name  # the glTF mesh keeps the input's name
+            for obj in mesh_users:
+                obj.data = copy
         options = dict(EXPORT_OPTIONS, export_tangents=_has_tangent_normal_map())
         bpy.ops.export_scene.gltf(filepath=str(path), **options)
         repair_tangents(path)

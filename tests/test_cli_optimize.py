@@ -307,3 +307,80 @@ bpy.ops.wm.save_as_mainfile(filepath={str(tmp_path / 'linked.blend')!r})
     assert "'spot_mirrored' shows 'spot_mirrored.png'" in last
     assert "'spot_triangulated' shows 'spot_texture.png'" in last
     assert list(out.iterdir()) == []
+
+
+@pytest.fixture(scope="module")
+def two_slot_blend(two_textures_blend, tmp_path_factory):
+    """The spot patch alone with its faces right of x = 0 on a second slot that shows the mirrored texture."""
+    path = tmp_path_factory.mktemp("in") / "two_slots.blend"
+    code = f"""
+import bpy, numpy as np
+bpy.ops.wm.open_mainfile(filepath={str(two_textures_blend)!r})
+bpy.data.objects.remove(bpy.data.objects["spot_mirrored"])
+obj = bpy.data.objects["spot_triangulated"]
+obj.data.materials.append(bpy.data.materials["spot_mirrored"])
+centres = np.empty(3 * len(obj.data.polygons), np.float32)
+obj.data.polygons.foreach_get("center", centres)
+obj.data.polygons.foreach_set("material_index", (centres.reshape(-1, 3)[:, 0] > 0).astype(np.int32))
+bpy.ops.wm.save_as_mainfile(filepath={str(path)!r})
+"""
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
+    return path
+
+
+def test_an_object_whose_slots_show_two_textures_gets_one_uv_map_laid_out_per_texture(two_slot_blend, tmp_path):
+    import gltf_validate
+    from test_gltf_export import accessor, buffer_view_bytes, image_size, read_glb
+
+    out, report_path = tmp_path / "out.glb", tmp_path / "report.json"
+    result = run_cli("optimize", str(two_slot_blend), "--out", str(out), "--report", str(report_path), *FAST_ARGS)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "texture 1 of 2: 'spot_mirrored.png' on spot_triangulated (slot 2)" in result.stderr
+    report = json.loads(report_path.read_text())
+    assert report["objects"] == ["spot_triangulated"]
+    first, second = report["textures"]
+    gltf, binary = read_glb(out)
+    (mesh,) = gltf["meshes"]
+    assert len(mesh["primitives"]) == 2
+    for primitive in mesh["primitives"]:
+        assert "TEXCOORD_0" in primitive["attributes"] and "TEXCOORD_1" not in primitive["attributes"]
+        material = gltf["materials"][primitive["material"]]
+        texture = first if material["name"] == first["materials"][0] else second
+        assert material["name"] == texture["materials"][0]
+        image = gltf["images"][gltf["textures"][material["pbrMetallicRoughness"]["baseColorTexture"]["index"]]
+                               ["source"]]
+        data, _ = buffer_view_bytes(gltf, binary, image["bufferView"])
+        assert image["name"] == texture["image"] and image_size(data) == (texture["resolution"],) * 2
+        uv = accessor(gltf, binary, primitive["attributes"]["TEXCOORD_0"])
+        assert uv.min() >= 0 and uv.max() <= 1 and uv.max() - uv.min() > 0.5  # each layout fills its own image
+    assert first["faces"] + second["faces"] == report["faces"]
+    if gltf_validate.unavailable() is None:
+        assert gltf_validate.validate(out)["errors"] == 0
+
+
+def test_the_mesh_of_a_two_texture_object_keeps_its_data_in_a_blend(two_slot_blend, tmp_path):
+    out = tmp_path / "out.blend"
+    assert run_cli("optimize", str(two_slot_blend), "--out", str(out), *FAST_ARGS).returncode == 0
+    code = f"""
+import bpy, json, numpy as np
+def state(path):
+    bpy.ops.wm.open_mainfile(filepath=path)
+    obj = bpy.data.objects["spot_triangulated"]
+    mesh = obj.data
+    uv = np.empty(2 * len(mesh.loops), np.float32)
+    mesh.uv_layers["UVMap"].uv.foreach_get("vector", uv)
+    co = np.empty(3 * len(mesh.vertices), np.float32)
+    mesh.vertices.foreach_get("co", co)
+    return {{"counts": [len(mesh.vertices), len(mesh.polygons), len(mesh.loops)], "uv": uv.tolist(),
+             "co": co.tolist(), "layers": [layer.name for layer in mesh.uv_layers],
+             "mesh_materials": [m.name for m in mesh.materials],
+             "slots": [(slot.link, slot.material.name) for slot in obj.material_slots],
+             "objects": sorted(o.name for o in bpy.data.objects)}}
+print("JSON" + json.dumps([state({str(two_slot_blend)!r}), state({str(out)!r})]))
+"""
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    before, after = json.loads(next(line for line in run.stdout.splitlines() if line.startswith("JSON"))[4:])
+    for key in ("counts", "uv", "co", "mesh_materials", "objects"):
+        assert after[key] == before[key], key
+    assert after["layers"] == ["UVMap", "PerceptualUV"]
+    assert after["slots"] == [["OBJECT", "spot_perceptual"], ["OBJECT", "spot_mirrored_perceptual"]]
