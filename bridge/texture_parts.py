@@ -86,6 +86,10 @@ def split_by_texture(obj):
 
 
 def _part(obj, image, slots, drop):
+    # The part shades as the object does at every corner it keeps (the tangent-space normal maps are baked in its
+    # frame): without faces beyond a texture border, the smooth normals there would lean away.
+    normals = np.empty(3 * len(obj.data.loops), dtype=np.float32)
+    obj.data.corner_normals.foreach_get("vector", normals)
     mesh = obj.data.copy()
     try:
         mesh.name = f"{obj.data.name}.{image.name}.part"
@@ -102,6 +106,7 @@ def _part(obj, image, slots, drop):
             bm.free()
         corners = _take_attribute(mesh, _CORNER, len(mesh.loops))
         faces = _take_attribute(mesh, _FACE, len(mesh.polygons))
+        mesh.normals_split_custom_set(normals.reshape(-1, 3)[corners])
         old_index = np.empty(len(mesh.polygons), dtype=np.int32)
         mesh.polygons.foreach_get("material_index", old_index)
         new_index = np.zeros(max(int(slots.max()) + 1, int(old_index.max(initial=0)) + 1), dtype=np.int32)

@@ -19,6 +19,7 @@ def three_slot_grid():
     obj.data.materials.append(other.data.materials[0])
     obj.data.materials.append(bpy.data.materials.new("untextured"))
     obj.data.polygons.foreach_set("material_index", np.array([0, 1, 2, 0], dtype=np.int32))
+    obj.data.shade_smooth()  # the bumpy grid's vertex normals lean on every face around them
     bpy.data.objects.remove(other)
     return obj
 
@@ -45,6 +46,12 @@ def test_one_part_per_texture_with_the_corners_faces_and_slots_it_came_from():
     assert first.corners.tolist() == [0, 1, 2, 3, 12, 13, 14, 15] and second.corners.tolist() == [4, 5, 6, 7]
     np.testing.assert_array_equal(corner_uvs(first.part.data, "UVMap"), corner_uvs(obj.data, "UVMap")[first.corners])
     assert [slot.material for slot in second.part.material_slots] == [obj.material_slots[1].material]
+    for part in (first, second):  # smooth normals along the texture border as on the object, not just its side
+        normals = np.empty(3 * len(part.corners), np.float32)
+        part.part.data.corner_normals.foreach_get("vector", normals)
+        original = np.empty(3 * len(obj.data.loops), np.float32)
+        obj.data.corner_normals.foreach_get("vector", original)
+        np.testing.assert_allclose(normals.reshape(-1, 3), original.reshape(-1, 3)[part.corners], atol=2e-4)
     assert len(obj.data.polygons) == 4 and len(obj.data.materials) == 3  # the object is left as it was
     assert split_by_texture(first.part) == []  # one texture: nothing to split
     remove_parts([first, second])
