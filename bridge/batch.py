@@ -168,8 +168,7 @@ def optimize_file(args):
         _writable_folder(pathlib.Path(args.report).resolve().parent)
     import_model(args.input)
     groups, parts = _groups_and_parts(args.object)
-    shown = {part.part.name: f"{part.original.name} (slot{'s' if len(part.slots) > 1 else ''} "
-                             f"{', '.join(str(slot + 1) for slot in part.slots)})" for part in parts}
+    shown = _part_labels(parts)
     runs, saved = [], []
     try:
         if len(groups) > 1:
@@ -245,6 +244,12 @@ def _groups_and_parts(object_name):
         remove_parts(parts)
         raise
     return groups, parts
+
+
+def _part_labels(parts):
+    """How a message names each part: its object and slots."""
+    return {part.part.name: f"{part.original.name} (slot{'s' if len(part.slots) > 1 else ''} "
+                            f"{', '.join(str(slot + 1) for slot in part.slots)})" for part in parts}
 
 
 def _merge_parts(parts, runs, epsilon):
@@ -396,11 +401,11 @@ def combined_report(reports):
     }
 
 
-def _evaluated_group(texture):
-    """The meshes ``evaluate`` measures: those that show the image named ``texture``, or, when None, those of
-    the file's only texture (:func:`texture_groups`)."""
-    groups = texture_groups()
-    listing = "; ".join(f"{image.name}: {', '.join(o.name for o in objs)}" for image, objs in groups)
+def _evaluated_group(groups, labels, texture):
+    """The meshes ``evaluate`` measures, of ``groups`` (:func:`_groups_and_parts`): those that show the image
+    named ``texture``, or, when None, those of the file's only texture."""
+    listing = "; ".join(f"{image.name}: {', '.join(labels.get(o.name, o.name) for o in objs)}"
+                        for image, objs in groups)
     if texture is not None:
         chosen = [objects for image, objects in groups if image.name == texture]
         if not chosen:
@@ -438,18 +443,26 @@ def evaluate_file(args):
 
     import_model(args.input)
     # A file an optimize run wrote shows the material copies: the evaluation compares against what the run read.
+    # An object whose slots show several textures is measured per texture, on the part of its faces that show it.
     with original_materials([obj for obj in bpy.context.scene.objects if obj.type == "MESH"]):
-        objects = [obj for obj in _evaluated_group(getattr(args, "texture", None)) if args.uv in obj.data.uv_layers]
-        if not objects:
-            raise ValueError(f"no textured mesh object in {args.input} has a UV map '{args.uv}'")
-        ref_uv = args.ref_uv or objects[0].data.uv_layers.active.name
-        screen = getattr(args, "screen", 512)
-        if getattr(args, "shaded", False):
-            from .evaluate_shaded import evaluate_shaded
+        groups, parts = _groups_and_parts(None)
+        try:
+            objects = [obj for obj in _evaluated_group(groups, _part_labels(parts), getattr(args, "texture", None))
+                       if args.uv in obj.data.uv_layers]
+            if not objects:
+                raise ValueError(f"no textured mesh object in {args.input} has a UV map '{args.uv}'")
+            ref_uv = args.ref_uv or objects[0].data.uv_layers.active.name
+            screen = getattr(args, "screen", 512)
+            if getattr(args, "shaded", False):
+                from .evaluate_shaded import evaluate_shaded
 
-            result = evaluate_shaded(objects, args.uv, reference_uv=ref_uv, costs=args.costs, screen_pixels=screen)
-        else:
-            result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs, screen_pixels=screen)
+                result = evaluate_shaded(objects, args.uv, reference_uv=ref_uv, costs=args.costs,
+                                         screen_pixels=screen)
+            else:
+                result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs,
+                                         screen_pixels=screen)
+        finally:
+            remove_parts(parts)
     result["input"] = str(pathlib.Path(args.input).resolve())
     for p in result["points"]:
         if "maps" in p:

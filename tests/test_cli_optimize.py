@@ -384,3 +384,20 @@ print("JSON" + json.dumps([state({str(two_slot_blend)!r}), state({str(out)!r})])
         assert after[key] == before[key], key
     assert after["layers"] == ["UVMap", "PerceptualUV"]
     assert after["slots"] == [["OBJECT", "spot_perceptual"], ["OBJECT", "spot_mirrored_perceptual"]]
+
+
+def test_evaluate_measures_each_texture_of_an_object_on_its_own_faces(two_slot_blend, tmp_path):
+    out = tmp_path / "out.blend"
+    assert run_cli("optimize", str(two_slot_blend), "--out", str(out), *FAST_ARGS).returncode == 0
+
+    unnamed = run_cli("evaluate", str(out), "--uv", "PerceptualUV", "--costs", "0.5", "--screen", "64")
+    assert unnamed.returncode == 2
+    assert "spot_texture.png: spot_triangulated (slot 1)" in unnamed.stderr
+    runs = [run_cli("evaluate", str(out), "--uv", "PerceptualUV", "--texture", image, "--costs", "0.5",
+                    "--screen", "64", "--json", str(tmp_path / f"{image}.json"))
+            for image in ("spot_texture.png", "spot_mirrored.png")]
+
+    assert [run.returncode for run in runs] == [0, 0], runs[0].stderr[-2000:] + runs[1].stderr[-2000:]
+    q = [json.loads((tmp_path / f"{image}.json").read_text())["points"][0]["q"]
+         for image in ("spot_texture.png", "spot_mirrored.png")]
+    assert all(0 < value < 0.1 for value in q) and q[0] != q[1]
