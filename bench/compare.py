@@ -116,7 +116,7 @@ through their imports; ``"bridge.baselines:ssp_uv"`` is one definition of a modu
 that a change to one method there does not recompute the others. ``ours_eps<epsilon>`` depends on what ``ours``
 does; a method not listed (a new one) depends on every module of core/ and bridge/ and on this file."""
 EVALUATION_SOURCES = ("bridge.evaluate", "bridge.mesh_io", "bridge.material", "bridge.batch:textured_objects",
-                      "bridge.batch:texture_groups")
+                      "bridge.texture_sets:texture_groups")
 """What every method's result depends on: the import of the model, the renders, the bakes and q_r."""
 SHADED_SOURCES = ("bridge.evaluate_shaded",)
 """What every method's result depends on in addition with ``--shaded`` (the whole-material bake, the copies)."""

@@ -65,6 +65,7 @@ class PipelineResult:
     materials: list
     report: dict
     images: list = dataclasses.field(default_factory=list)  # every new image, the base colour's first
+    discard: object = None  # discard(): remove everything the run added (a later run of the same job failed)
 
 
 def _unique_uv_name(objects, wanted):
@@ -391,7 +392,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         }
         yield step("done", 1, 1, "Done")
         return PipelineResult(uv_map=uv_name, image=new_image, materials=materials, report=report,
-                              images=[result.image for result in bakes])
+                              images=[result.image for result in bakes], discard=created.remove_all)
     except BaseException:
         created.remove_all()
         raise

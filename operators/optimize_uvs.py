@@ -13,28 +13,10 @@ SLICE_SECONDS = 0.1
 
 
 def _objects(context):
-    """The active object plus the selected meshes that share its texture (one atlas; the base colour's, or the
-    largest map's when there is no base-colour image: ``bridge.material.loss_image_nodes``), and the other
-    selected meshes, which the run leaves as they are."""
-    from ..bridge.material import loss_image_nodes
-
+    """The active object and the other selected meshes: optimized one texture at a time
+    (``bridge.texture_sets``; selected meshes that show no texture are left as they are)."""
     active = context.active_object
-    candidates = [obj for obj in context.selected_objects if obj is not active and obj.type == "MESH"]
-    slots = [(obj, slot.material) for obj in [active, *candidates] for slot in obj.material_slots]
-    nodes = list(zip(slots, loss_image_nodes(material for _, material in slots)))
-    images = {node.image for (obj, _), node in nodes if obj is active and node is not None}
-    sharing = {obj.name for (obj, _), node in nodes if node is not None and node.image in images}
-    return ([active, *(obj for obj in candidates if obj.name in sharing)],
-            [obj for obj in candidates if obj.name not in sharing])
-
-
-def _left_out_note(left_out):
-    """What the run tells about selected meshes it leaves as they are, or None."""
-    if not left_out:
-        return None
-    names = ", ".join(f"'{obj.name}'" for obj in left_out)
-    return (f"{names} left as {'it is' if len(left_out) == 1 else 'they are'}: not the texture of the active "
-            "object (optimize each texture with one of its objects active)")
+    return [active, *(obj for obj in context.selected_objects if obj is not active and obj.type == "MESH")]
 
 
 class UV_OT_perceptual_optimize(bpy.types.Operator):
@@ -60,7 +42,7 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
         return problem is None
 
     def _start(self, context, *, modal=False):
-        from ..bridge.pipeline import optimize_objects
+        from ..bridge.texture_sets import iter_optimize_textures
 
         self._previous_mode = context.mode
         settings = settings_from(self)
@@ -68,37 +50,37 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
             settings = dataclasses.replace(settings, bake_in_background=True)
         if context.mode == "EDIT_MESH":
             bpy.ops.object.mode_set(mode="OBJECT")  # edit-mode meshes hold their data in BMesh until left
-        objects, self._left_out = _objects(context)
-        return optimize_objects(objects, settings)
+        return iter_optimize_textures(_objects(context), settings)
 
     def _restore_mode(self):
         if self._previous_mode == "EDIT_MESH":
             bpy.ops.object.mode_set(mode="EDIT")
 
-    def _finish(self, context, result):
-        report = result.report
-        memory = report.get("memory_ratio")
-        memory = f"image memory {memory:.2f} of the input's, " if memory is not None else ""
-        self.report({"INFO"}, f"{report['uv_map']}: {report['resolution']} px image '{report['image']}', {memory}"
-                    f"relative texel cost {report['relative_cost']:.2f}, {report['triangles_within_bound']:.0%} of "
-                    f"triangles within the loss bound, {report['times_s']['total']:.0f} s")
-        for note in [*report.get("notes", []), _left_out_note(getattr(self, "_left_out", []))]:
-            if note:
+    def _finish(self, context, runs):
+        for _, result in runs:
+            report = result.report
+            memory = report.get("memory_ratio")
+            memory = f"image memory {memory:.2f} of the input's, " if memory is not None else ""
+            self.report({"INFO"}, f"{report['uv_map']}: {report['resolution']} px image '{report['image']}', "
+                        f"{memory}relative texel cost {report['relative_cost']:.2f}, "
+                        f"{report['triangles_within_bound']:.0%} of triangles within the loss bound, "
+                        f"{report['times_s']['total']:.0f} s")
+            for note in report.get("notes", []):
                 self.report({"INFO"}, note)
-        for warning in report.get("warnings", []):
-            self.report({"WARNING"}, warning)
+            for warning in report.get("warnings", []):
+                self.report({"WARNING"}, warning)
 
     def execute(self, context):
         from ..bridge.pipeline import run_to_end
 
         try:
-            result = run_to_end(self._start(context))
+            runs = run_to_end(self._start(context))
         except (ValueError, OSError, RuntimeError) as error:  # RuntimeError: a dead worker
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
         finally:
             self._restore_mode()
-        self._finish(context, result)
+        self._finish(context, runs)
         return {"FINISHED"}
 
     def invoke(self, context, event):

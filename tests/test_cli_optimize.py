@@ -186,8 +186,8 @@ def test_one_run_per_texture_into_one_glb(two_textures_blend, tmp_path):
     result = run_cli("optimize", str(two_textures_blend), "--out", str(out), "--report", str(report_path),
                      *FAST_ARGS)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert "texture 1 of 2: 'spot_mirrored.png' on spot_mirrored" in result.stderr
-    assert "texture 2 of 2: 'spot_texture.png' on spot_triangulated" in result.stderr
+    assert "Texture 1 of 2 ('spot_mirrored.png' on spot_mirrored): " in result.stderr
+    assert "Texture 2 of 2 ('spot_texture.png' on spot_triangulated): " in result.stderr
     report = json.loads(report_path.read_text())
     first, second = report["textures"]
     assert [first["maps"][0]["image"], second["maps"][0]["image"]] == ["spot_mirrored.png", "spot_texture.png"]
@@ -227,14 +227,14 @@ bpy.ops.wm.save_as_mainfile(filepath={str(tmp_path / 'mixed.blend')!r})
     out.mkdir()
     result = run_cli("optimize", str(tmp_path / "mixed.blend"), "--out", str(out / "o.glb"), *FAST_ARGS)
     assert result.returncode == 2
-    assert "[triangle]" not in result.stderr and "texture 1 of" not in result.stderr
+    assert "[triangle]" not in result.stderr and "Texture 1 of" not in result.stderr
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("perceptual_uv: error: object 'spot_triangulated' uses 2 different images")
     assert list(out.iterdir()) == []
 
 
 def test_combined_report_sums_counts_and_weighs_the_bound_by_triangles():
-    from perceptual_uv.bridge.batch import combined_report
+    from perceptual_uv.bridge.texture_sets import combined_report
 
     def report(image, faces, within, before, after, files, uv_map, notes):
         return {"objects": [image], "faces": faces, "vertices": faces // 2, "optimized_triangles": faces,
@@ -335,7 +335,7 @@ def test_an_object_whose_slots_show_two_textures_gets_one_uv_map_laid_out_per_te
     out, report_path = tmp_path / "out.glb", tmp_path / "report.json"
     result = run_cli("optimize", str(two_slot_blend), "--out", str(out), "--report", str(report_path), *FAST_ARGS)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert "texture 1 of 2: 'spot_mirrored.png' on spot_triangulated (slot 2)" in result.stderr
+    assert "Texture 1 of 2 ('spot_mirrored.png' on spot_triangulated (slot 2)): " in result.stderr
     report = json.loads(report_path.read_text())
     assert report["objects"] == ["spot_triangulated"]
     first, second = report["textures"]

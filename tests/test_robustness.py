@@ -696,25 +696,52 @@ def test_an_operator_run_reads_a_png_texture_without_blender_loading_it(tmp_path
     assert result.uv_map in obj.data.uv_layers and os.path.isfile(entry["new_image_file"])
 
 
-def test_the_operator_names_the_selected_meshes_of_other_textures_it_leaves_as_they_are():
+def test_the_operator_optimizes_every_selected_texture_in_one_run(tmp_path):
     from types import SimpleNamespace
 
-    from perceptual_uv.operators.optimize_uvs import _left_out_note, _objects
+    from perceptual_uv.bridge.texture_sets import iter_optimize_textures
+    from perceptual_uv.operators.optimize_uvs import _objects
 
     first = textured_grid("first")
-    sharing = textured_grid("sharing", image=first.material_slots[0].material.node_tree.nodes["Image Texture"].image)
-    other = textured_grid("other")
+    sharing = textured_grid("sharing", image=first.material_slots[0].material.node_tree.nodes["Image Texture"].image,
+                            location=(2.0, 0.0, 0.0))
+    other = textured_grid("other", location=(4.0, 0.0, 0.0))
+    assert _objects(SimpleNamespace(active_object=first, selected_objects=[other, first, sharing])) == [
+        first, other, sharing]
 
-    objects, left_out = _objects(SimpleNamespace(active_object=first, selected_objects=[other, first, sharing]))
+    runs = run_to_end(iter_optimize_textures([first, other, sharing], SETTINGS, output_dir=str(tmp_path)))
 
-    assert objects == [first, sharing] and left_out == [other]
-    assert _left_out_note(left_out) == ("'other' left as it is: not the texture of the active object (optimize "
-                                        "each texture with one of its objects active)")
-    assert _left_out_note([]) is None
+    assert [(objects, result.report["objects"]) for objects, result in runs] == [
+        ([first, sharing], ["first", "sharing"]), ([other], ["other"])]
+    for obj in (first, sharing, other):
+        assert "PerceptualUV" in obj.data.uv_layers
+    assert runs[0][1].image != runs[1][1].image
+
+
+def test_a_cancel_in_the_second_texture_removes_what_the_first_made(tmp_path):
+    from perceptual_uv.bridge.texture_sets import iter_optimize_textures
+
+    first = textured_grid("first")
+    other = textured_grid("other", location=(2.0, 0.0, 0.0))
+    before = (sorted(bpy.data.images.keys()), sorted(bpy.data.materials.keys()), sorted(bpy.data.objects.keys()),
+              sorted(bpy.data.meshes.keys()))
+    job = iter_optimize_textures([first, other], SETTINGS, output_dir=str(tmp_path))
+    for progress in job:
+        if progress.message.startswith("Texture 2 of 2") and progress.stage == "triangle":
+            break
+    assert "PerceptualUV" in first.data.uv_layers and list(tmp_path.iterdir())  # the first texture is done
+
+    job.close()
+
+    assert (sorted(bpy.data.images.keys()), sorted(bpy.data.materials.keys()), sorted(bpy.data.objects.keys()),
+            sorted(bpy.data.meshes.keys())) == before
+    assert [layer.name for layer in first.data.uv_layers] == ["UVMap"] == [layer.name for layer in other.data.uv_layers]
+    assert [slot.material.name for slot in first.material_slots] == ["first_material"]
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_texture_groups_frame_a_part_without_base_colour_by_its_own_largest_map():
-    from perceptual_uv.bridge.batch import texture_groups
+    from perceptual_uv.bridge.texture_sets import texture_groups
 
     coloured = textured_grid("coloured")
     plain = textured_grid("plain", image_size=(32, 32), location=(2.0, 0.0, 0.0))
@@ -727,7 +754,7 @@ def test_texture_groups_frame_a_part_without_base_colour_by_its_own_largest_map(
     untextured = textured_grid("untextured", location=(4.0, 0.0, 0.0))
     untextured.data.materials[0] = bpy.data.materials.new("untextured_plain")
 
-    groups = texture_groups()
+    groups = texture_groups(bpy.context.scene.objects)
 
     assert [(image.name, objects) for image, objects in groups] == [
         ("coloured_texture", [coloured]), ("plain_texture", [plain])]

@@ -102,3 +102,33 @@ def test_a_slot_no_face_uses_makes_no_part():
     obj.data.polygons.foreach_set("material_index", np.array([0, 2, 2, 0], dtype=np.int32))
 
     assert split_by_texture(obj) == []
+
+
+def test_a_runs_progress_is_relayed_as_its_share_of_the_whole_job():
+    from perceptual_uv.bridge.pipeline import Progress
+    from perceptual_uv.bridge.texture_sets import _relayed
+
+    closed = []
+
+    def run():
+        try:
+            for fraction in (0.0, 0.5, 1.0):
+                yield Progress("triangle", 1, 2, "Triangle-wise optimization", fraction, 10.0)
+        finally:
+            closed.append(True)
+        return "result"
+
+    relayed = _relayed(run(), "Texture 2 of 2 ('b.png' on b): ", 30, 10, 40, started=0.0)
+    steps = []
+    with pytest.raises(StopIteration) as finished:
+        while True:
+            steps.append(next(relayed))
+
+    assert finished.value.value == "result"
+    assert [step.fraction for step in steps] == [0.75, 0.875, 1.0]  # 30 of 40 faces done before this run
+    assert steps[0].message == "Texture 2 of 2 ('b.png' on b): Triangle-wise optimization"
+    assert steps[-1].seconds_left == 0.0
+    early = _relayed(run(), "", 0, 10, 40, started=0.0)
+    next(early)
+    early.close()
+    assert closed == [True, True]  # closing the relay closes the run (which removes what it made)
