@@ -131,13 +131,13 @@ def optimize_file(args):
                   args)
     reports = [result.report for _, result in runs]
     saved = [path for report in reports for path in _saved_files(report)]
-    report = dict(reports[0] if len(reports) == 1 else combined_report(reports), input=str(args.input),
-                  output=str(out))
-    for note in report.get("notes", []):
-        _log(f"note: {note}")
-    for warning in report.get("warnings", []):
-        _log(f"warning: {warning}")
     try:
+        report = dict(reports[0] if len(reports) == 1 else combined_report(reports), input=str(args.input),
+                      output=str(out))
+        for note in report.get("notes", []):
+            _log(f"note: {note}")
+        for warning in report.get("warnings", []):
+            _log(f"warning: {warning}")
         with atomic_path(out) as temporary:
             try:
                 if out.suffix.lower() == ".glb":

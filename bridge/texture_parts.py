@@ -109,7 +109,8 @@ def _part(obj, image, slots, drop):
         mesh.normals_split_custom_set(normals.reshape(-1, 3)[corners])
         old_index = np.empty(len(mesh.polygons), dtype=np.int32)
         mesh.polygons.foreach_get("material_index", old_index)
-        new_index = np.zeros(max(int(slots.max()) + 1, int(old_index.max(initial=0)) + 1), dtype=np.int32)
+        old_index = np.clip(old_index, 0, len(obj.material_slots) - 1)  # as the faces were chosen
+        new_index = np.zeros(len(obj.material_slots), dtype=np.int32)
         new_index[slots] = np.arange(len(slots))
         mesh.materials.clear()
         for material in materials:

@@ -102,7 +102,7 @@ def _check_groups(groups, source_uv):
                 raise ValueError(f"mesh '{obj.data.name}' is shared by objects that show different textures "
                                  f"('{other[0].name}' shows '{other[1].name}', '{obj.name}' shows '{image.name}'): "
                                  "one mesh gets one new UV map; give the objects meshes of their own (Object > "
-                                 "Relations > Make Single User > Object & Data) or optimize one with --object")
+                                 "Relations > Make Single User > Object & Data) or optimize them one at a time")
         objects, _, group_uv = check_objects(objects, source_uv)
         read_maps(objects, group_uv, image)
 

@@ -132,3 +132,19 @@ def test_a_runs_progress_is_relayed_as_its_share_of_the_whole_job():
     next(early)
     early.close()
     assert closed == [True, True]  # closing the relay closes the run (which removes what it made)
+
+
+def test_a_material_index_past_the_last_slot_counts_as_the_last_slot():
+    from perceptual_uv.bridge.texture_parts import remove_parts, split_by_texture
+
+    obj = three_slot_grid()
+    obj.data.polygons.foreach_set("material_index", np.array([0, 1, 9, 0], dtype=np.int32))
+    obj.data.materials[2] = obj.data.materials[1]  # the third slot shows the second texture too
+
+    first, second = split_by_texture(obj)
+
+    assert second.faces.tolist() == [1, 2] and second.slots.tolist() == [1, 2]
+    index = np.empty(2, np.int32)
+    second.part.data.polygons.foreach_get("material_index", index)
+    assert index.tolist() == [0, 1]  # face 2 (index 9) on the part's slot of the object's third slot
+    remove_parts([first, second])
