@@ -31,18 +31,18 @@ import sys
 import tempfile
 import time
 
-from perceptual_uv.core.settings import MODEL_SUFFIXES
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from pipeline import model_file as pipeline_model_file  # noqa: E402  (bench/pipeline.py, next to this file)
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
 def model_file(folder):
-    folder = pathlib.Path(folder)
-    for suffix in MODEL_SUFFIXES:
-        found = sorted(folder.glob(f"*{suffix}"))
-        if found:
-            return found[0]
-    return None
+    """The model file of ``folder`` (bench/pipeline.py's choice), or None when it has none."""
+    try:
+        return pipeline_model_file(folder)
+    except SystemExit:
+        return None
 
 
 def copy_model(source, target_dir, index):
