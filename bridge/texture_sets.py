@@ -25,8 +25,9 @@ def texture_groups(objects):
 
     The texture is the one that frames a run (:func:`.material.loss_image_nodes`), a mesh's the one of its first
     slot that has one: the base colour's image, and for meshes none of whose materials has one, their largest
-    map's (a part with a normal or roughness map and a constant colour is a texture of its own); meshes that read
-    no image (an armature's bone shape, a helper, an untextured part beside textured ones) are not part of the
+    map's (a part with a normal or roughness map and a constant colour is a texture of its own) if they read one
+    through their active UV map; meshes that read no image so (an armature's bone shape, a helper, an untextured
+    part beside textured ones, a part whose only map is an occlusion map on a second UV map) are not part of the
     model.
 
     Returns
@@ -38,7 +39,7 @@ def texture_groups(objects):
     ValueError
         No mesh among ``objects`` shows an image texture.
     """
-    from .material import loss_image_nodes
+    from .material import loss_image_nodes, read_object_materials
 
     first_image = {}  # each mesh in the group of its first slot's texture
 
@@ -48,9 +49,12 @@ def texture_groups(objects):
             if node is not None:
                 first_image.setdefault(obj.name, (obj, node.image))
 
+    def reads_through_its_uv_map(obj):  # an occlusion map on a second UV map alone frames no run
+        return len(obj.data.uv_layers) and any(reading.maps for reading in read_object_materials(obj))
+
     meshes = [obj for obj in objects if obj.type == "MESH"]
     add_first_images(meshes)
-    add_first_images([obj for obj in meshes if obj.name not in first_image])
+    add_first_images([obj for obj in meshes if obj.name not in first_image and reads_through_its_uv_map(obj)])
     groups = {}
     for obj, image in first_image.values():
         groups.setdefault(image.name, (image, []))[1].append(obj)

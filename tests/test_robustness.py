@@ -753,6 +753,16 @@ def test_texture_groups_frame_a_part_without_base_colour_by_its_own_largest_map(
     tree.links.new(node.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Roughness"])
     untextured = textured_grid("untextured", location=(4.0, 0.0, 0.0))
     untextured.data.materials[0] = bpy.data.materials.new("untextured_plain")
+    second_uv = textured_grid("second_uv", location=(6.0, 0.0, 0.0))  # its only map read through another UV map
+    second_uv.data.uv_layers.new(name="Other")
+    tree = second_uv.material_slots[0].material.node_tree
+    node = tree.nodes["Image Texture"]
+    for link in list(node.outputs["Color"].links):
+        tree.links.remove(link)
+    tree.links.new(node.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Roughness"])
+    uv_node = tree.nodes.new("ShaderNodeUVMap")
+    uv_node.uv_map = "Other"
+    tree.links.new(uv_node.outputs["UV"], node.inputs["Vector"])
 
     groups = texture_groups(bpy.context.scene.objects)
 
