@@ -103,7 +103,8 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
         Flag of the per-asset worker processes (``batch`` uses ``--workers`` for its Dask workers).
     """
     parser.add_argument("--object", help="mesh object to optimize (default: the textured mesh objects)")
-    parser.add_argument("--uv", help="input UV map (default: the active one)")
+    parser.add_argument("--uv", help="input UV map (default: the active one, or the one the texture is read "
+                                     "through when that is another)")
     parser.add_argument("--epsilon", type=float, default=DEFAULTS.epsilon,
                         help=f"perceptual loss bound (default {DEFAULTS.epsilon})")
     size = parser.add_mutually_exclusive_group()

@@ -100,6 +100,13 @@ def resolve_source_uv(objects, source_uv):
                      f"earlier run (or put '{original}' back in the slot) to start from the original")
 
 
+def uv_maps_reading(objects, image):
+    """The UV maps through which the objects' materials read ``image`` (None for coordinates that are no UV
+    map's)."""
+    return {record.uv_map for obj in objects for slot in obj.material_slots
+            for record in material_maps(slot.material, render_uv=render_uv_name(obj.data)) if record.image == image}
+
+
 def read_maps(objects, source_uv, loss_image):
     """Every map the objects' materials read through ``source_uv``: one record per new image, the loss image's
     first; notes on images left as they are. Refuses (ValueError) maps that cannot be re-baked."""
@@ -137,9 +144,7 @@ def read_maps(objects, source_uv, loss_image):
     key = min((key for key in records if key[0] == loss_image.as_pointer()), key=lambda key: key[1] != "emit",
               default=None)
     if key is None:
-        read_through = sorted({str(record.uv_map) for obj in objects for slot in obj.material_slots
-                               for record in material_maps(slot.material, render_uv=render_uv_name(obj.data))
-                               if record.image == loss_image})
+        read_through = sorted(map(str, uv_maps_reading(objects, loss_image)))
         where = f" (it is read through {', '.join(repr(uv) for uv in read_through)})" if read_through else ""
         usable = len(read_through) == 1 and all(read_through[0] in obj.data.uv_layers for obj in objects)
         hint = (f"pass --uv {read_through[0]} on the command line, or make '{read_through[0]}' the active UV map in "

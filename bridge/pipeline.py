@@ -23,8 +23,9 @@ from .image_file import image_size, iter_save_or_pack
 from .loss_overlay import write_loss_attributes
 from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_side, image_stem, iter_loss_planes_of,
                             map_report, map_resolution, material_copies, memory_resolution, read_maps,
-                            resolve_source_uv)
-from .read_objects import READ_STEPS, iter_import_stages, iter_read_objects, one_object_per_mesh, target_problem
+                            resolve_source_uv, uv_maps_reading)
+from .read_objects import (READ_STEPS, iter_import_stages, iter_read_objects, one_object_per_mesh, source_image,
+                           target_problem)
 
 __all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "check_objects", "run_to_end",
            "map_resolution", "COPY_PROPERTY"]
@@ -140,7 +141,17 @@ def check_objects(objects, source_uv=None):
         if problem:
             raise ValueError(problem)
     objects, shared_notes = one_object_per_mesh(objects)
+    given = source_uv
     source_uv = resolve_source_uv(objects, source_uv)
+    if given is None:  # none named: the UV map the texture is read through, when that is one other map
+        image = source_image(objects)
+        read = uv_maps_reading(objects, image)
+        if len(read) == 1 and source_uv not in read and all(next(iter(read)) in obj.data.uv_layers
+                                                             for obj in objects):
+            (other,) = read
+            shared_notes.append(f"the texture '{image.name}' is read through UV map '{other}', not the active "
+                                f"'{source_uv}': '{other}' is the one optimized")
+            source_uv = other
     for obj in objects:
         if source_uv not in obj.data.uv_layers:
             names = ", ".join(f"'{layer.name}'" for layer in obj.data.uv_layers)

@@ -391,13 +391,21 @@ def test_objects_with_different_uv_map_names_are_refused_naming_them():
     assert "its UV maps: 'Lightmap'" in message and "same name" in message
 
 
-def test_a_texture_read_through_another_uv_map_than_the_active_one_names_it():
+def test_a_texture_read_through_another_uv_map_than_the_active_one_optimizes_that_one():
     # The image node has no Vector input, so it reads the render UV map; the active one (for editing) is new.
-    obj = textured_grid("other_active")
-    extra = obj.data.uv_layers.new(name="Edit")
-    obj.data.uv_layers.active = extra
-    assert obj.data.uv_layers["UVMap"].active_render
-    message = refused([obj], match="is not read through UV map 'Edit' \\(it is read through 'UVMap'\\)")
+    def grid_editing_another_uv_map(name):
+        obj = textured_grid(name)
+        obj.data.uv_layers.active = obj.data.uv_layers.new(name="Edit")
+        assert obj.data.uv_layers["UVMap"].active_render
+        return obj
+
+    result = optimized([grid_editing_another_uv_map("other_active")])
+
+    assert result.report["source_uv_map"] == "UVMap"
+    assert ("the texture 'other_active_texture' is read through UV map 'UVMap', not the active 'Edit': 'UVMap' is "
+            "the one optimized") in result.report["notes"]
+    message = refused([grid_editing_another_uv_map("named")], source_uv="Edit",  # named, it is not overruled
+                      match="is not read through UV map 'Edit' \\(it is read through 'UVMap'\\)")
     assert "pass --uv UVMap" in message
 
 
