@@ -129,9 +129,10 @@ def check_objects(objects, source_uv=None):
     objects : list of bpy.types.Object
         One object per mesh (:func:`.read_objects.one_object_per_mesh`).
     notes : list of str
-        On the objects that share a mesh.
+        On the objects that share a mesh, and on the UV map chosen.
     source_uv : str
-        The input UV map's name (:func:`resolve_source_uv`).
+        The input UV map's name: ``source_uv`` when given, else :func:`resolve_source_uv`'s, or the one UV map
+        the texture is read through when that is another.
     """
     objects = list(objects)
     if not objects:
