@@ -47,9 +47,15 @@ def textured_objects(object_name=None):
         return [obj]
     groups = texture_groups(bpy.context.scene.objects)
     if len(groups) > 1:
-        listing = "; ".join(f"{image.name}: {', '.join(o.name for o in objs)}" for image, objs in groups)
-        raise ValueError(f"the meshes use {len(groups)} different textures ({listing}); pick one with --object")
+        raise ValueError(f"the meshes use {len(groups)} different textures ({_listing(groups)}); pick one with "
+                         "--object")
     return groups[0][1]
+
+
+def _listing(groups, labels=None):
+    """The textures of ``groups`` and their meshes, for a message (``labels`` names the parts)."""
+    labels = labels or {}
+    return "; ".join(f"{image.name}: {', '.join(labels.get(o.name, o.name) for o in objs)}" for image, objs in groups)
 
 
 class _ProgressLines:
@@ -201,8 +207,7 @@ def _remove_files(paths):
 def _evaluated_group(groups, labels, texture):
     """The meshes ``evaluate`` measures, of ``groups`` (:func:`.texture_sets.groups_and_parts`): those that show
     the image named ``texture``, or, when None, those of the file's only texture."""
-    listing = "; ".join(f"{image.name}: {', '.join(labels.get(o.name, o.name) for o in objs)}"
-                        for image, objs in groups)
+    listing = _listing(groups, labels)
     if texture is not None:
         chosen = [objects for image, objects in groups if image.name == texture]
         if not chosen:

@@ -6,7 +6,7 @@ out (:mod:`.gltf_export`): they are for Blender, not part of the asset.
 """
 import numpy as np
 
-__all__ = ["LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE", "loss_ramp", "write_loss_attributes"]
+__all__ = ["LOSS_ATTRIBUTE", "LOSS_COLOR_ATTRIBUTE", "loss_ramp", "write_loss_attributes", "write_polygon_losses"]
 
 LOSS_ATTRIBUTE = "perceptual_loss"
 LOSS_COLOR_ATTRIBUTE = "perceptual_loss_color"
@@ -52,6 +52,12 @@ def write_loss_attributes(obj, tri_polygons, losses, epsilon, created):
     mesh = obj.data
     polygon_loss = np.zeros(len(mesh.polygons), dtype=np.float32)
     np.maximum.at(polygon_loss, tri_polygons, losses.astype(np.float32))
+    write_polygon_losses(mesh, polygon_loss, epsilon, created)
+
+
+def write_polygon_losses(mesh, polygon_loss, epsilon, created):
+    """The overlay's attributes of ``mesh`` from E per polygon (``polygon_loss``, (p,) float32): the float face
+    attribute and its colour on every corner of the polygon (:func:`write_loss_attributes`' second half)."""
     for name in (LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE):
         if name in mesh.attributes:
             mesh.attributes.remove(mesh.attributes[name])

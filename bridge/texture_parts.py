@@ -22,7 +22,7 @@ import bmesh
 import bpy
 import numpy as np
 
-from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE, loss_ramp
+from .loss_overlay import LOSS_ATTRIBUTE, write_polygon_losses
 from .material import loss_image_nodes
 
 __all__ = ["TexturePart", "slot_textures", "split_by_texture", "merge_parts", "remove_parts"]
@@ -151,7 +151,8 @@ def merge_parts(parts, uv_maps, materials, *, source_uv, epsilon):
     source_uv : str
         The UV map whose coordinates the corners of faces in no part keep.
     epsilon : float
-        The loss bound, for the overlay's colour of faces in no part (loss 0).
+        The loss bound, for the overlay's colours (:func:`.loss_overlay.write_polygon_losses`; faces in no part
+        have loss 0).
     """
     copies = set(materials)
     by_object = {}
@@ -164,10 +165,6 @@ def merge_parts(parts, uv_maps, materials, *, source_uv, epsilon):
         mesh.uv_layers[source_uv].uv.foreach_get("vector", corners)
         uv = corners.reshape(-1, 2)
         face_loss = np.zeros(len(mesh.polygons), dtype=np.float32)
-        loop_totals = np.empty(len(mesh.polygons), dtype=np.int32)
-        mesh.polygons.foreach_get("loop_total", loop_totals)
-        corner_color = loss_ramp(face_loss, epsilon)[np.repeat(np.arange(len(mesh.polygons)), loop_totals)]
-        corner_color = np.array(corner_color, dtype=np.float32)
         for part, _ in object_parts:
             part_mesh = part.part.data
             values = np.empty(2 * len(part_mesh.loops), dtype=np.float32)
@@ -177,9 +174,6 @@ def merge_parts(parts, uv_maps, materials, *, source_uv, epsilon):
                 losses = np.empty(len(part_mesh.polygons), dtype=np.float32)
                 part_mesh.attributes[LOSS_ATTRIBUTE].data.foreach_get("value", losses)
                 face_loss[part.faces] = losses
-                colors = np.empty(4 * len(part_mesh.loops), dtype=np.float32)
-                part_mesh.attributes[LOSS_COLOR_ATTRIBUTE].data.foreach_get("color", colors)
-                corner_color[part.corners] = colors.reshape(-1, 4)
             for part_slot, slot in zip(part.part.material_slots, part.slots):
                 if part_slot.material in copies:
                     target = obj.material_slots[int(slot)]
@@ -187,12 +181,7 @@ def merge_parts(parts, uv_maps, materials, *, source_uv, epsilon):
                     target.material = part_slot.material
         layer = mesh.uv_layers.get(uv_map) or mesh.uv_layers.new(name=uv_map, do_init=False)
         layer.uv.foreach_set("vector", uv.ravel())
-        for name in (LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE):
-            if name in mesh.attributes:
-                mesh.attributes.remove(mesh.attributes[name])
-        mesh.attributes.new(LOSS_ATTRIBUTE, "FLOAT", "FACE").data.foreach_set("value", face_loss)
-        mesh.attributes.new(LOSS_COLOR_ATTRIBUTE, "BYTE_COLOR", "CORNER").data.foreach_set(
-            "color", corner_color.ravel())
+        write_polygon_losses(mesh, face_loss, epsilon, [])
     remove_parts(parts)
 
 
