@@ -6,7 +6,8 @@ Usage::
         [--against REV] [--workers 2] [--iterations 100] [--operator] [--set NAME=VALUE ...] [--json OUT.json]
 
 Each model runs in a fresh process (``--models`` takes model folders or files) at the default settings, driving
-the pipeline generator the way the modal operator does: one ``next`` per step. Printed per model and revision:
+the job that ``optimize`` and the modal operator run (every texture of the file, one run each:
+``bridge.texture_sets.iter_optimize_textures``) the way the operator does: one ``next`` per step. Printed per model and revision:
 the stage times of the report (``read`` is everything before the triangle-wise stage), the triangle-wise stage
 in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
 freezes for as long as one step takes), and the peak memory of the run's whole process tree (the pipeline
@@ -76,21 +77,27 @@ def run_pipeline(path, settings_options, stage_file=None):
 
     import bpy
 
-    from perceptual_uv.bridge.batch import textured_objects
     from perceptual_uv.bridge.mesh_io import import_model
-    from perceptual_uv.bridge.pipeline import optimize_objects
     from perceptual_uv.core.settings import OptimizeSettings
 
     enter("import")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     started = time.perf_counter()
     import_model(path)
-    objects = textured_objects()
     imported = time.perf_counter() - started
     output_dir = tempfile.TemporaryDirectory(prefix="perceptual_uv-bench-")
     known = {name: _tuples(value) for name, value in settings_options.items()  # an older revision may lack one
              if name in OptimizeSettings.__dataclass_fields__}
-    pipeline = optimize_objects(objects, OptimizeSettings(**known), output_dir=output_dir.name)
+    settings = OptimizeSettings(**known)
+    try:  # the job `optimize` and the Optimize UVs button run: every texture of the file
+        from perceptual_uv.bridge.texture_sets import combined_report, iter_optimize_textures
+    except ImportError:  # a revision from before files of several textures ran
+        from perceptual_uv.bridge.batch import textured_objects
+        from perceptual_uv.bridge.pipeline import optimize_objects
+
+        pipeline = optimize_objects(textured_objects(), settings, output_dir=output_dir.name)
+    else:
+        pipeline = iter_optimize_textures(list(bpy.context.scene.objects), settings, output_dir=output_dir.name)
     durations = []  # (seconds, stage and message of the step's start)
     step_started, stage = time.perf_counter(), "start"
     while True:
@@ -109,7 +116,11 @@ def run_pipeline(path, settings_options, stage_file=None):
     longest, longest_stage = durations[0]
     steps = len(durations)
     output_dir.cleanup()
-    report = result.report
+    if isinstance(result, list):  # iter_optimize_textures: (objects, result) per texture
+        runs = [run.report for _, run in result]
+        report = runs[0] if len(runs) == 1 else combined_report(runs)
+    else:
+        runs, report = [result.report], result.report
     times = dict(report["times_s"])
     times["read"] = times["total"] - sum(times.get(name, 0.0) for name in ("triangle", "mesh", "pack", "bake"))
     optimized = report.get("optimized_triangles", report["faces"])
@@ -118,7 +129,8 @@ def run_pipeline(path, settings_options, stage_file=None):
             "triangle_ms_per_face": 1000 * times["triangle"] / max(optimized, 1),
             "longest_step_s": longest, "longest_step_stage": longest_stage.split(":")[0], "steps": steps,
             "longest_steps": [[round(seconds, 3), where] for seconds, where in durations[:5]],
-            "resolution": report["resolution"], "relative_cost": report["relative_cost"]}
+            "textures": len(runs), **{key: [run[key] for run in runs] if len(runs) > 1 else report[key]
+                                      for key in ("resolution", "relative_cost")}}
 
 
 def _children():

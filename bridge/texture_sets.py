@@ -14,10 +14,12 @@ import time
 
 import bpy
 
-from .pipeline import check_objects, optimize_objects
-from .texture_parts import merge_parts, remove_parts, split_by_texture
+from ..core.progress import run_generator
+from .pipeline import Progress, check_objects, optimize_objects
+from .texture_parts import iter_split_by_texture, merge_parts, remove_parts
 
-__all__ = ["texture_groups", "groups_and_parts", "part_labels", "iter_optimize_textures", "combined_report"]
+__all__ = ["texture_groups", "groups_and_parts", "iter_groups_and_parts", "part_labels", "iter_optimize_textures",
+           "combined_report"]
 
 
 def texture_groups(objects):
@@ -68,13 +70,34 @@ def groups_and_parts(objects):
     """The runs' groups of ``objects``, each with the texture it shows (:func:`texture_groups`), and the
     temporary parts of the objects whose slots show several textures (:func:`.texture_parts.split_by_texture`:
     one run per texture, merged back after the runs). The other users of a split object's mesh (linked
-    duplicates) are in no group: the mesh is optimized once, through its first user."""
+    duplicates) are in no group: the mesh is optimized once, through its first user.
+
+    See Also
+    --------
+    iter_groups_and_parts : the same, one part per step.
+    """
+    return run_generator(iter_groups_and_parts(objects))
+
+
+def iter_groups_and_parts(objects):
+    """Generator: :func:`groups_and_parts`, yielding a :class:`.pipeline.Progress` of the ``read`` stage after
+    each part it makes (a part copies its object's whole mesh); returns ``(groups, parts)``. Closing it removes
+    the parts made so far."""
     parts, split = [], set()
     meshes = [obj for obj in objects if obj.type == "MESH"]
     try:
         for obj in meshes:
             if obj.data.name not in split:
-                made = split_by_texture(obj)
+                splitting = iter_split_by_texture(obj)
+                try:
+                    while True:
+                        done, total = next(splitting)
+                        yield Progress("read", done, total, f"Splitting '{obj.name}' by texture: {done}/{total}")
+                except StopIteration as finished:
+                    made = finished.value
+                except BaseException:
+                    splitting.close()
+                    raise
                 if made:
                     parts += made
                     split.add(obj.data.name)
@@ -91,14 +114,14 @@ def part_labels(parts):
                             f"{', '.join(str(slot + 1) for slot in part.slots)})" for part in parts}
 
 
-def _check_groups(groups, source_uv):
-    """Every refusal of the runs on ``groups`` that needs no mesh reading, before the first starts: one that
-    fails after others have run would have cost their time for nothing."""
+def _iter_check_groups(groups, source_uv):
+    """Generator: every refusal of the runs on ``groups`` that needs no mesh reading, before the first starts (one
+    that fails after others have run would have cost their time for nothing); a ``read`` step per group."""
     from .material_copy import read_maps
     from .read_objects import source_image
 
     shown_by = {}
-    for objects in groups:
+    for number, objects in enumerate(groups):
         image = source_image(objects)
         for obj in objects:
             other = shown_by.setdefault(obj.data.name, (obj, image))
@@ -109,6 +132,7 @@ def _check_groups(groups, source_uv):
                                  "Relations > Make Single User > Object & Data) or optimize them one at a time")
         objects, _, group_uv = check_objects(objects, source_uv)
         read_maps(objects, group_uv, image)
+        yield Progress("read", number + 1, len(groups), f"Checking the texture '{image.name}'")
 
 
 def iter_optimize_textures(objects, settings, *, source_uv=None, output_dir=None):
@@ -141,12 +165,12 @@ def iter_optimize_textures(objects, settings, *, source_uv=None, output_dir=None
         refusals, a mesh shared by objects of two textures). A cancel (closing the generator) or an error
         removes what every run made.
     """
-    groups, parts = groups_and_parts(objects)
+    groups, parts = yield from iter_groups_and_parts(objects)
     labels = part_labels(parts)
     runs = []
     try:
         if len(groups) > 1:
-            _check_groups([group for _, group in groups], source_uv)
+            yield from _iter_check_groups([group for _, group in groups], source_uv)
         weights = [sum(len(obj.data.polygons) for obj in group) or 1 for _, group in groups]
         started = time.perf_counter()
         for number, (image, group) in enumerate(groups):

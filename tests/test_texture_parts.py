@@ -148,3 +148,33 @@ def test_a_material_index_past_the_last_slot_counts_as_the_last_slot():
     second.part.data.polygons.foreach_get("material_index", index)
     assert index.tolist() == [0, 1]  # face 2 (index 9) on the part's slot of the object's third slot
     remove_parts([first, second])
+
+
+def test_the_split_is_one_step_per_part_and_a_cancel_between_parts_removes_them():
+    """A part copies its object's whole mesh (a few tenths of a second on a large one): the job hands control back
+    to the interface after each part, and closing it there leaves the file as it was."""
+    from perceptual_uv.bridge.texture_parts import remove_parts
+    from perceptual_uv.bridge.texture_sets import iter_groups_and_parts
+
+    obj = three_slot_grid()
+    plain = textured_grid("plain", location=(3.0, 0.0, 0.0))  # one texture: nothing to split
+    before = (sorted(bpy.data.objects.keys()), sorted(bpy.data.meshes.keys()))
+
+    steps = iter_groups_and_parts([obj, plain])
+    first = next(steps)
+    assert (first.stage, first.done, first.total) == ("read", 1, 2)
+    assert first.message == "Splitting 'mixed' by texture: 1/2"
+    assert len(bpy.data.objects) == 3  # the first part exists
+    steps.close()
+    assert (sorted(bpy.data.objects.keys()), sorted(bpy.data.meshes.keys())) == before
+
+    steps = iter_groups_and_parts([obj, plain])
+    assert [(p.done, p.total) for p in [next(steps), next(steps)]] == [(1, 2), (2, 2)]
+    with pytest.raises(StopIteration) as finished:
+        next(steps)
+    groups, parts = finished.value.value
+    assert [p.part.name for p in parts] == ["mixed.mixed_texture.part", "mixed.other_texture.part"]
+    assert sorted((image.name, [o.name for o in objects]) for image, objects in groups) == [
+        ("mixed_texture", ["mixed.mixed_texture.part"]), ("other_texture", ["mixed.other_texture.part"]),
+        ("plain_texture", ["plain"])]
+    remove_parts(parts)
