@@ -27,8 +27,9 @@ def import_model(path):
     Parameters
     ----------
     path : str or os.PathLike
-        A ``.blend`` file (opened as the current file), or ``.obj``, ``.gltf``/``.glb`` (imported with
-        Blender's own importers, which convert glTF's Y-up axes and flipped V to Blender's conventions).
+        A ``.blend`` file (opened as the current file), or ``.obj``, ``.gltf``/``.glb``, ``.fbx`` (imported with
+        Blender's own importers, which convert glTF's and FBX's axes and glTF's flipped V to Blender's
+        conventions; an FBX's textures embedded in it are packed, the others searched for by name in its folder).
 
     Returns
     -------
@@ -58,6 +59,9 @@ def import_model(path):
                     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
                     if suffix == ".obj":
                         bpy.ops.wm.obj_import(filepath=str(path))
+                    elif suffix == ".fbx":
+                        with _light_shadow_setting():
+                            bpy.ops.import_scene.fbx(filepath=str(path))
                     else:
                         bpy.ops.import_scene.gltf(filepath=str(path))
         except RuntimeError as error:
@@ -68,7 +72,29 @@ def import_model(path):
     return sorted(bpy.context.scene.objects, key=lambda obj: obj.name)
 
 
-_LOADERS = {".blend": "Blender", ".obj": "the OBJ importer", ".gltf": "the glTF importer", ".glb": "the glTF importer"}
+@contextlib.contextmanager
+def _light_shadow_setting():
+    """Give Cycles' light settings a ``cast_shadow`` property meanwhile, where they lack it.
+
+    Blender 5.0's FBX importer sets ``light.cycles.cast_shadow`` for every light of the file, a setting Cycles 5.0
+    no longer has (shadows are ``light.use_shadow``, which the importer sets too): any FBX file with a light
+    failed to load. The property only receives the value and is removed again afterwards.
+    """
+    probe = bpy.data.lights.new("perceptual_uv_probe", "POINT")
+    settings = type(getattr(probe, "cycles", None))
+    bpy.data.lights.remove(probe)
+    missing = hasattr(settings, "bl_rna") and "cast_shadow" not in settings.bl_rna.properties
+    if missing:
+        settings.cast_shadow = bpy.props.BoolProperty()
+    try:
+        yield
+    finally:
+        if missing:
+            del settings.cast_shadow
+
+
+_LOADERS = {".blend": "Blender", ".obj": "the OBJ importer", ".gltf": "the glTF importer", ".glb": "the glTF importer",
+            ".fbx": "the FBX importer"}
 
 
 def _loader_failure(error, suffix, messages):

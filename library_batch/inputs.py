@@ -1,11 +1,13 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """The assets of a batch: which files, what identifies their content, and where their outputs go."""
 import dataclasses
+import functools
 import glob
 import hashlib
 import json
 import os
 import pathlib
+import re
 import urllib.parse
 
 from ..core.settings import MODEL_SUFFIXES
@@ -88,7 +90,7 @@ def find_models(arguments, *, out):
     Parameters
     ----------
     arguments : sequence of str
-        Files, folders (searched recursively for .blend, .glb/.gltf and .obj) and globs (``**`` recurses).
+        Files, folders (searched recursively for .blend, .glb/.gltf, .obj and .fbx) and globs (``**`` recurses).
     out : path-like
         The output folder; models inside it (an earlier run's results) are never inputs.
 
@@ -118,13 +120,13 @@ def find_models(arguments, *, out):
                     found.append(match)
             found = [p for p in found if not _under(p, out)]
             if not found:
-                raise ValueError(f"{text}: no .blend, .glb, .gltf or .obj file matches")
+                raise ValueError(f"{text}: no .blend, .glb, .gltf, .obj or .fbx file matches")
             root = _glob_root(text).resolve()
         elif path.is_dir():
             root = path.resolve()
             found = _walk(root, skip=out)
             if not found:
-                raise ValueError(f"{text}: no .blend, .glb, .gltf or .obj file in this folder")
+                raise ValueError(f"{text}: no .blend, .glb, .gltf, .obj or .fbx file in this folder")
         elif path.is_file():
             if path.suffix.lower() not in MODEL_SUFFIXES:
                 raise ValueError(f"{text}: unsupported input type (expected one of {', '.join(MODEL_SUFFIXES)})")
@@ -138,8 +140,9 @@ def find_models(arguments, *, out):
 
 def external_files(path):
     """Files a model reads besides itself: an .obj's material libraries and their maps, a .gltf's buffers and
-    images (data: URIs excluded). A .blend's linked images are not listed (reading them needs Blender); its packed
-    images are part of its bytes.
+    images (data: URIs excluded), the image files an .fbx names that Blender's FBX importer would load
+    (:func:`_fbx_images`). A .blend's linked images are not listed (reading them needs Blender); its packed
+    images, and an .fbx's embedded ones, are part of its bytes.
 
     Returns
     -------
@@ -176,7 +179,55 @@ def external_files(path):
                     if len(words) >= 2 and (words[0].lower().startswith("map_")
                                             or words[0].lower() in ("bump", "disp", "decal", "refl", "norm")):
                         files.append(library.parent / words[-1])
+    elif suffix == ".fbx":
+        files = _fbx_images(path)
     return list(dict.fromkeys(files))
+
+
+# An image file name's extension in an FBX file, and the bytes that end the name before it: binary FBX keeps
+# strings as length-prefixed bytes (the prefix and the property's type code are cut off by the control bytes
+# around them), ASCII FBX in double quotes.
+_FBX_IMAGE_EXTENSION = re.compile(rb"\.(?:png|jpe?g|tga|tiff?|bmp|exr|hdr|webp|dds|psd|gif)", re.IGNORECASE)
+_FBX_NAME_END = re.compile(rb'[\x00-\x1f"*<>?|]')
+_FBX_LONGEST_NAME = 1024
+
+
+def _fbx_images(path):
+    """The image files an FBX file names (its textures' ``FileName`` and ``RelativeFilename``), found as Blender's
+    FBX importer finds them: the relative name next to the file, the absolute name, else a file of that name
+    anywhere below the file's folder (its image search). Names it finds nowhere are left out: the importer leaves
+    those textures out too."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return []
+    folder = path.parent
+    found = []
+    for match in _FBX_IMAGE_EXTENSION.finditer(data):
+        start = max(0, match.start() - _FBX_LONGEST_NAME)
+        before = data[start:match.start()]
+        ends = list(_FBX_NAME_END.finditer(before))
+        name = before[ends[-1].end() if ends else 0:] + match.group()
+        name = name.decode("utf-8", errors="replace").strip().replace("\\", "/")
+        if name == match.group().decode():  # an extension alone: no name
+            continue
+        named = folder / name  # an absolute name stays itself
+        if named.is_file():
+            found.append(named)
+        else:
+            found += _files_named(str(folder)).get(pathlib.PurePosixPath(name).name.lower(), [])[:1]
+    return found
+
+
+@functools.lru_cache(maxsize=64)
+def _files_named(folder):
+    """Every file below ``folder`` by its lower-case name (one walk per folder between two plans,
+    :func:`plan_assets`)."""
+    names = {}
+    for root, _, files in sorted(os.walk(folder)):
+        for name in sorted(files):
+            names.setdefault(name.lower(), []).append(pathlib.Path(root) / name)
+    return names
 
 
 def _hash_file(digest, path):
@@ -222,6 +273,7 @@ def plan_assets(models, roots, *, out, settings):
     The mirrored tree starts at the common folder of ``roots``. Two models of one folder with the same stem
     (``a.obj`` and ``a.glb``) get folders named ``a_obj`` and ``a_glb``.
     """
+    _files_named.cache_clear()  # one look at the folders' files per plan
     out = pathlib.Path(out).resolve()
     base = pathlib.Path(os.path.commonpath([str(r) for r in roots])) if roots else pathlib.Path("/")
     relatives = [pathlib.PurePosixPath(pathlib.Path(os.path.relpath(m, base)).as_posix()) for m in models]

@@ -87,7 +87,7 @@ def test_find_models_takes_files_folders_and_globs_and_skips_the_output_folder(t
                             out=tmp_path / "o")
     assert [p.name for p in models] == ["b.glb", "d.blend"]
     for bad, message in (([str(lib / "nope")], "no such file"), ([str(lib / "notes.txt")], "unsupported"),
-                         ([str(lib / "*.fbx")], "no .blend")):
+                         ([str(lib / "*.stl")], "no .blend")):
         with pytest.raises(ValueError, match=message):
             find_models(bad, out=tmp_path / "o")
 
@@ -391,3 +391,27 @@ def test_closing_its_own_cluster_quiets_the_cluster_logs_first_and_leaves_a_remo
         assert logger.level == logging.CRITICAL
     finally:
         logger.setLevel(level)
+
+
+def test_external_files_of_an_fbx_are_the_images_it_names_where_blenders_importer_finds_them(tmp_path):
+    """Binary FBX stores a string as a type code and a 4-byte length before its bytes; ASCII FBX in quotes. A
+    texture named by an absolute path of the machine that wrote the file is found by its name anywhere below the
+    file's folder, as Blender's importer searches; a name found nowhere is left out."""
+    (tmp_path / "maps").mkdir()
+    (tmp_path / "deep" / "er").mkdir(parents=True)
+    (tmp_path / "maps" / "albedo.png").write_bytes(b"a")
+    (tmp_path / "deep" / "er" / "Rough.TGA").write_bytes(b"r")
+
+    def string(text):
+        data = text.encode()
+        return b"S" + len(data).to_bytes(4, "little") + data
+
+    binary = tmp_path / "binary.fbx"
+    binary.write_bytes(b"Kaydara FBX Binary  \x00\x1a\x00" + string("maps\\albedo.png") + b"\x00\x07"
+                       + string("C:\\Users\\artist\\Desktop\\Rough.TGA") + string("missing.jpg")
+                       + string("Texture::albedo") + b"\x00png.png\x00")
+    assert external_files(binary) == [tmp_path / "maps" / "albedo.png", tmp_path / "deep" / "er" / "Rough.TGA"]
+    ascii_fbx = tmp_path / "ascii.fbx"
+    ascii_fbx.write_text('; FBX 7.4.0 project file\nTexture: "Texture::a", "" {\n'
+                         '\tFileName: "U:/Some/Absolute/rough.tga"\n\tRelativeFilename: "maps\\albedo.png"\n}\n')
+    assert external_files(ascii_fbx) == [tmp_path / "deep" / "er" / "Rough.TGA", tmp_path / "maps" / "albedo.png"]

@@ -402,3 +402,46 @@ def test_evaluate_measures_each_texture_of_an_object_on_its_own_faces(two_slot_b
     q = q_of_each_texture(out, tmp_path)
 
     assert all(0 < value < 0.1 for value in q) and q[0] != q[1]
+
+
+@pytest.fixture(scope="module")
+def patch_fbx(spot_obj, tmp_path_factory):
+    """The patch as an FBX file with a light (as exports from other programs have), its texture in a subfolder
+    that the file names by its absolute path and by a relative one."""
+    import shutil
+
+    obj = spot_patch(spot_obj, above=1.0)
+    folder = tmp_path_factory.mktemp("fbx")
+    (folder / "maps").mkdir()
+    shutil.copy(spot_obj.parent / "spot_texture.png", folder / "maps" / "spot_texture.png")
+    bpy.data.images["spot_texture.png"].filepath = str(folder / "maps" / "spot_texture.png")
+    light = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "POINT"))
+    bpy.context.scene.collection.objects.link(light)
+    obj.select_set(True)
+    path = folder / "patch.fbx"
+    bpy.ops.export_scene.fbx(filepath=str(path), path_mode="RELATIVE")
+    return path
+
+
+def test_an_fbx_file_with_a_light_is_optimized(patch_fbx, tmp_path):
+    """Blender 5.0's FBX importer failed on any light (it sets a Cycles setting 5.0 no longer has)."""
+    from perceptual_uv.bridge.mesh_io import import_model
+    from perceptual_uv.library_batch.inputs import external_files
+
+    assert external_files(patch_fbx) == [patch_fbx.parent / "maps" / "spot_texture.png"]
+    objects = import_model(patch_fbx)
+    assert sorted(obj.type for obj in objects) == ["LIGHT", "MESH"]
+    light_settings = type(bpy.data.lights["Lamp"].cycles)
+    assert "cast_shadow" not in light_settings.bl_rna.properties  # the importer's setting is gone again
+
+    out, report_path = tmp_path / "out.glb", tmp_path / "report.json"
+    result = run_cli("optimize", str(patch_fbx), "--out", str(out), "--report", str(report_path), *FAST_ARGS)
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(report_path.read_text())
+    assert report["uv_map"] == "PerceptualUV" and report["maps"][0]["image"] == "spot_texture.png"
+    import gltf_validate
+
+    reason = gltf_validate.unavailable()
+    if reason:
+        pytest.skip(reason)
+    assert gltf_validate.validate(out)["errors"] == 0
