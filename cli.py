@@ -149,7 +149,8 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
 def _add_batch_options(batch):
     """``batch``'s own options; the optimization settings come from :func:`_add_optimize_options`."""
     batch.add_argument("inputs", metavar="INPUT", nargs="+",
-                       help="model files, folders (searched recursively for .blend, .glb/.gltf, .obj, .fbx) or globs")
+                       help="model files, folders (searched recursively for .blend, .glb/.gltf, .obj, .fbx, "
+                            ".usd/.usda/.usdc/.usdz) or globs")
     batch.add_argument("--out", required=True, type=pathlib.Path,
                        help="output folder: the input tree mirrored, one folder per asset, manifest and summary")
     batch.add_argument("--format", choices=("blend", "glb"), default="blend", help="output format (default blend)")
@@ -173,7 +174,8 @@ def build_parser():
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     optimize = commands.add_parser("optimize", help="optimize the UV map of a model and bake its texture")
-    optimize.add_argument("input", metavar="IN", type=_existing_model, help=".blend, .glb/.gltf, .obj or .fbx")
+    optimize.add_argument("input", metavar="IN", type=_existing_model,
+                          help=".blend, .glb/.gltf, .obj, .fbx or .usd/.usda/.usdc/.usdz")
     _add_optimize_options(optimize)
     optimize.add_argument("--scheduler", metavar="ADDRESS",
                           help="Dask scheduler (e.g. tcp://host:8786): the triangle-wise stage runs on every worker "

@@ -27,9 +27,10 @@ def import_model(path):
     Parameters
     ----------
     path : str or os.PathLike
-        A ``.blend`` file (opened as the current file), or ``.obj``, ``.gltf``/``.glb``, ``.fbx`` (imported with
-        Blender's own importers, which convert glTF's and FBX's axes and glTF's flipped V to Blender's
-        conventions; an FBX's textures embedded in it are packed, the others searched for by name in its folder).
+        A ``.blend`` file (opened as the current file), or ``.obj``, ``.gltf``/``.glb``, ``.fbx``,
+        ``.usd``/``.usda``/``.usdc``/``.usdz`` (imported with Blender's own importers, which convert glTF's, FBX's
+        and USD's axes and glTF's flipped V to Blender's conventions; an FBX's textures embedded in it are packed,
+        the others searched for by name in its folder; a USDZ's are packed).
 
     Returns
     -------
@@ -62,6 +63,8 @@ def import_model(path):
                     elif suffix == ".fbx":
                         with _light_shadow_setting():
                             bpy.ops.import_scene.fbx(filepath=str(path))
+                    elif suffix.startswith(".usd"):
+                        bpy.ops.wm.usd_import(filepath=str(path))
                     else:
                         bpy.ops.import_scene.gltf(filepath=str(path))
         except RuntimeError as error:
@@ -94,7 +97,7 @@ def _light_shadow_setting():
 
 
 _LOADERS = {".blend": "Blender", ".obj": "the OBJ importer", ".gltf": "the glTF importer", ".glb": "the glTF importer",
-            ".fbx": "the FBX importer"}
+            ".fbx": "the FBX importer", **dict.fromkeys((".usd", ".usda", ".usdc", ".usdz"), "the USD importer")}
 
 
 def _loader_failure(error, suffix, messages):

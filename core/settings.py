@@ -5,7 +5,7 @@ __all__ = ["OptimizeSettings", "COST_ROLES", "COST_MEASURES", "MODEL_SUFFIXES", 
 
 # The model files a run reads (``bridge.mesh_io.import_model``), lower case: here, where the command line and the
 # batch orchestrator can check an input without importing ``bridge``.
-MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj", ".fbx")
+MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj", ".fbx", ".usd", ".usda", ".usdc", ".usdz")
 
 # The map roles of ``bridge.material_roles.ROLES`` (kept equal by a test; core does not import bridge), and
 # "normal" for the three normal-map roles at once.

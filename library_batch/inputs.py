@@ -1,20 +1,19 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """The assets of a batch: which files, what identifies their content, and where their outputs go."""
 import dataclasses
-import functools
 import glob
 import hashlib
 import json
 import os
 import pathlib
-import re
-import urllib.parse
 
 from ..core.settings import MODEL_SUFFIXES
+from .external_files import _files_named, external_files
 
 __all__ = ["Asset", "find_models", "external_files", "content_key", "plan_assets"]
 
 _GLOB_CHARS = frozenset("*?[")
+_KINDS = ", ".join(MODEL_SUFFIXES[:-1]) + " or " + MODEL_SUFFIXES[-1]
 _CHUNK = 1 << 20
 
 
@@ -90,7 +89,8 @@ def find_models(arguments, *, out):
     Parameters
     ----------
     arguments : sequence of str
-        Files, folders (searched recursively for .blend, .glb/.gltf, .obj and .fbx) and globs (``**`` recurses).
+        Files, folders (searched recursively for the model files of :data:`.core.settings.MODEL_SUFFIXES`) and globs
+        (``**`` recurses).
     out : path-like
         The output folder; models inside it (an earlier run's results) are never inputs.
 
@@ -120,13 +120,13 @@ def find_models(arguments, *, out):
                     found.append(match)
             found = [p for p in found if not _under(p, out)]
             if not found:
-                raise ValueError(f"{text}: no .blend, .glb, .gltf, .obj or .fbx file matches")
+                raise ValueError(f"{text}: no {_KINDS} file matches")
             root = _glob_root(text).resolve()
         elif path.is_dir():
             root = path.resolve()
             found = _walk(root, skip=out)
             if not found:
-                raise ValueError(f"{text}: no .blend, .glb, .gltf, .obj or .fbx file in this folder")
+                raise ValueError(f"{text}: no {_KINDS} file in this folder")
         elif path.is_file():
             if path.suffix.lower() not in MODEL_SUFFIXES:
                 raise ValueError(f"{text}: unsupported input type (expected one of {', '.join(MODEL_SUFFIXES)})")
@@ -136,98 +136,6 @@ def find_models(arguments, *, out):
         models += found
         roots.append(root)
     return list(dict.fromkeys(models)), roots
-
-
-def external_files(path):
-    """Files a model reads besides itself: an .obj's material libraries and their maps, a .gltf's buffers and
-    images (data: URIs excluded), the image files an .fbx names that Blender's FBX importer would load
-    (:func:`_fbx_images`). A .blend's linked images are not listed (reading them needs Blender); its packed
-    images, and an .fbx's embedded ones, are part of its bytes.
-
-    Returns
-    -------
-    list of pathlib.Path
-        Possibly missing files, in the order they are named.
-    """
-    path = pathlib.Path(path)
-    suffix = path.suffix.lower()
-    files = []
-    if suffix == ".gltf":
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return []
-        for item in list(data.get("buffers", [])) + list(data.get("images", [])):
-            uri = item.get("uri") if isinstance(item, dict) else None
-            if isinstance(uri, str) and uri and not uri.startswith("data:"):
-                files.append(path.parent / urllib.parse.unquote(uri))
-    elif suffix == ".obj":
-        try:
-            lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
-        except OSError:
-            return []
-        for line in lines:
-            if line.startswith("mtllib "):
-                library = path.parent / line[len("mtllib "):].strip()
-                files.append(library)
-                try:
-                    material_lines = library.read_text(encoding="utf-8", errors="replace").splitlines()
-                except OSError:
-                    continue
-                for entry in material_lines:
-                    words = entry.split()
-                    if len(words) >= 2 and (words[0].lower().startswith("map_")
-                                            or words[0].lower() in ("bump", "disp", "decal", "refl", "norm")):
-                        files.append(library.parent / words[-1])
-    elif suffix == ".fbx":
-        files = _fbx_images(path)
-    return list(dict.fromkeys(files))
-
-
-# An image file name's extension in an FBX file, and the bytes that end the name before it: binary FBX keeps
-# strings as length-prefixed bytes (the prefix and the property's type code are cut off by the control bytes
-# around them), ASCII FBX in double quotes.
-_FBX_IMAGE_EXTENSION = re.compile(rb"\.(?:png|jpe?g|tga|tiff?|bmp|exr|hdr|webp|dds|psd|gif)", re.IGNORECASE)
-_FBX_NAME_END = re.compile(rb'[\x00-\x1f"*<>?|]')
-_FBX_LONGEST_NAME = 1024
-
-
-def _fbx_images(path):
-    """The image files an FBX file names (its textures' ``FileName`` and ``RelativeFilename``), found as Blender's
-    FBX importer finds them: the relative name next to the file, the absolute name, else a file of that name
-    anywhere below the file's folder (its image search). Names it finds nowhere are left out: the importer leaves
-    those textures out too."""
-    try:
-        data = path.read_bytes()
-    except OSError:
-        return []
-    folder = path.parent
-    found = []
-    for match in _FBX_IMAGE_EXTENSION.finditer(data):
-        start = max(0, match.start() - _FBX_LONGEST_NAME)
-        before = data[start:match.start()]
-        ends = list(_FBX_NAME_END.finditer(before))
-        name = before[ends[-1].end() if ends else 0:] + match.group()
-        name = name.decode("utf-8", errors="replace").strip().replace("\\", "/")
-        if name == match.group().decode():  # an extension alone: no name
-            continue
-        named = folder / name  # an absolute name stays itself
-        if named.is_file():
-            found.append(named)
-        else:
-            found += _files_named(str(folder)).get(pathlib.PurePosixPath(name).name.lower(), [])[:1]
-    return found
-
-
-@functools.lru_cache(maxsize=64)
-def _files_named(folder):
-    """Every file below ``folder`` by its lower-case name (one walk per folder between two plans,
-    :func:`plan_assets`)."""
-    names = {}
-    for root, _, files in sorted(os.walk(folder)):
-        for name in sorted(files):
-            names.setdefault(name.lower(), []).append(pathlib.Path(root) / name)
-    return names
 
 
 def _hash_file(digest, path):

@@ -415,3 +415,17 @@ def test_external_files_of_an_fbx_are_the_images_it_names_where_blenders_importe
     ascii_fbx.write_text('; FBX 7.4.0 project file\nTexture: "Texture::a", "" {\n'
                          '\tFileName: "U:/Some/Absolute/rough.tga"\n\tRelativeFilename: "maps\\albedo.png"\n}\n')
     assert external_files(ascii_fbx) == [tmp_path / "deep" / "er" / "Rough.TGA", tmp_path / "maps" / "albedo.png"]
+
+
+def test_lz4_block_of_literals_and_an_overlapping_back_reference():
+    from perceptual_uv.library_batch.external_files import _fast_decompress, _lz4_block
+
+    # token 0x32: 3 literals, then a match of 2 + 4 = 6 bytes at offset 3 (overlapping what it writes); token
+    # 0x10: the last sequence, 1 literal.
+    block = b"\x32abc\x03\x00" + b"\x10!"
+    assert _lz4_block(block) == b"abcabcabc!"
+    assert _fast_decompress(b"\x00" + block) == b"abcabcabc!"
+    assert _fast_decompress(b"\x02" + len(block).to_bytes(4, "little") + block
+                            + (2).to_bytes(4, "little") + b"\x10?") == b"abcabcabc!?"
+    # lengths past 15 continue in the next bytes: 15 + 255 + 3 = 273 literals
+    assert _lz4_block(b"\xf0\xff\x03" + b"x" * 273) == b"x" * 273

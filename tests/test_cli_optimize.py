@@ -445,3 +445,28 @@ def test_an_fbx_file_with_a_light_is_optimized(patch_fbx, tmp_path):
     if reason:
         pytest.skip(reason)
     assert gltf_validate.validate(out)["errors"] == 0
+
+
+@pytest.fixture(scope="module")
+def patch_usd(spot_obj, tmp_path_factory):
+    """The patch as a binary USD layer with its texture in textures/ beside it, and a text layer that references
+    the binary one."""
+    spot_patch(spot_obj, above=1.0)
+    folder = tmp_path_factory.mktemp("usd")
+    bpy.ops.wm.usd_export(filepath=str(folder / "patch.usdc"), export_textures_mode="NEW")
+    (folder / "scene.usda").write_text('#usda 1.0\n\ndef "Patch" (\n    references = @./patch.usdc@\n)\n{\n}\n')
+    return folder
+
+
+def test_a_usd_layer_is_optimized_and_its_files_are_the_layers_and_images_it_names(patch_usd, tmp_path):
+    from perceptual_uv.library_batch.inputs import external_files
+
+    texture = patch_usd / "textures" / "spot_texture.png"
+    assert external_files(patch_usd / "patch.usdc") == [texture]  # an asset path in the crate's LZ4 tokens
+    assert external_files(patch_usd / "scene.usda") == [patch_usd / "patch.usdc", texture]
+    out, report_path = tmp_path / "out.glb", tmp_path / "report.json"
+    result = run_cli("optimize", str(patch_usd / "patch.usdc"), "--out", str(out), "--report", str(report_path),
+                     *FAST_ARGS)
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(report_path.read_text())
+    assert report["source_uv_map"] == "st" and report["maps"][0]["image"] == "spot_texture.png"
