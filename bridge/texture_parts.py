@@ -25,6 +25,7 @@ import numpy as np
 from ..core.progress import run_generator
 from .loss_overlay import LOSS_ATTRIBUTE, write_polygon_losses
 from .material import loss_image_nodes
+from .pipeline import Progress
 
 __all__ = ["TexturePart", "slot_textures", "split_by_texture", "iter_split_by_texture", "merge_parts",
            "remove_parts"]
@@ -73,8 +74,9 @@ def split_by_texture(obj):
 
 
 def iter_split_by_texture(obj):
-    """Generator: :func:`split_by_texture`, yielding ``(done, total)`` parts after each part it makes (a part
-    copies the whole mesh: about 3 microseconds per face of the object on this project's machine).
+    """Generator: :func:`split_by_texture`, yielding a :class:`.pipeline.Progress` of the ``read`` stage after each
+    part it makes (a part copies the whole mesh: about 3 microseconds per face of the object on this project's
+    machine).
 
     Returns
     -------
@@ -97,7 +99,8 @@ def iter_split_by_texture(obj):
         for image in images:
             slots = np.array([index for index in used if textures[index] == image])
             parts.append(_part(obj, image, slots, ~np.isin(material_index, slots)))
-            yield len(parts), len(images)
+            yield Progress("read", len(parts), len(images), f"Splitting '{obj.name}' by texture: "
+                                                             f"{len(parts)}/{len(images)}")
     except BaseException:
         remove_parts(parts)
         raise

@@ -88,16 +88,7 @@ def iter_groups_and_parts(objects):
     try:
         for obj in meshes:
             if obj.data.name not in split:
-                splitting = iter_split_by_texture(obj)
-                try:
-                    while True:
-                        done, total = next(splitting)
-                        yield Progress("read", done, total, f"Splitting '{obj.name}' by texture: {done}/{total}")
-                except StopIteration as finished:
-                    made = finished.value
-                except BaseException:
-                    splitting.close()
-                    raise
+                made = yield from iter_split_by_texture(obj)
                 if made:
                     parts += made
                     split.add(obj.data.name)

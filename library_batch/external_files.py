@@ -180,31 +180,27 @@ def _lz4_block(source):
     at, end = 0, len(source)
     while at < end:
         token = source[at]
-        at += 1
-        literals = token >> 4
-        if literals == 15:
-            while True:
-                extra = source[at]
-                at += 1
-                literals += extra
-                if extra != 255:
-                    break
+        literals, at = _lz4_length(source, at + 1, token >> 4)
         out += source[at:at + literals]
         at += literals
         if at >= end:  # the last sequence has literals only
             break
         offset = source[at] | source[at + 1] << 8
-        at += 2
-        length = token & 15
-        if length == 15:
-            while True:
-                extra = source[at]
-                at += 1
-                length += extra
-                if extra != 255:
-                    break
-        length += 4
+        length, at = _lz4_length(source, at + 2, token & 15)
         first = len(out) - offset
-        for index in range(length):  # a reference may overlap the bytes it writes
+        for index in range(length + 4):  # a reference may overlap the bytes it writes
             out.append(out[first + index])
     return bytes(out)
+
+
+def _lz4_length(source, at, length):
+    """A sequence's length from its token's 4 bits: 15 continues in the bytes at ``at`` (each added, until one
+    below 255); returns it and where the bytes after it start."""
+    if length == 15:
+        while True:
+            extra = source[at]
+            at += 1
+            length += extra
+            if extra != 255:
+                break
+    return length, at
