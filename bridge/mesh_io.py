@@ -106,6 +106,9 @@ def _loader_failure(error, suffix, messages):
     (``messages``, bytes)."""
     lines = [line.strip() for line in str(error).splitlines() if line.strip()]
     if not any("Traceback (most recent call last)" in line for line in lines):
+        if suffix == ".fbx" and any("ASCII FBX" in line for line in lines):
+            lines.append("(Blender reads binary FBX only: save the file as binary FBX, e.g. with Autodesk's FBX "
+                         "Converter or the program that wrote it, or export it as glTF)")
         return " ".join(lines)
     raised = [line for line in lines if not line.startswith(("Location:", "File ", "^", "~", "[Previous line"))]
     handle, kept = tempfile.mkstemp(prefix="perceptual_uv-import-", suffix=".txt")

@@ -470,3 +470,13 @@ def test_a_usd_layer_is_optimized_and_its_files_are_the_layers_and_images_it_nam
     assert result.returncode == 0, result.stderr[-3000:]
     report = json.loads(report_path.read_text())
     assert report["source_uv_map"] == "st" and report["maps"][0]["image"] == "spot_texture.png"
+
+
+def test_an_ascii_fbx_is_refused_in_one_line_that_says_what_to_do(tmp_path):
+    path = tmp_path / "box.fbx"
+    path.write_text('; FBX 7.4.0 project file\nFBXHeaderExtension:  {\n\tFBXHeaderVersion: 1003\n}\n')
+    result = run_cli("optimize", str(path), "--out", str(tmp_path / "out.glb"))
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "ASCII FBX files are not supported" in lines[0]
+    assert "save the file as binary FBX" in lines[0]
