@@ -16,10 +16,13 @@ The exporter writes every UV map and colour attribute of a mesh it exports, so e
 through a temporary copy that has only the new UV map and no overlay; the objects get their own mesh back
 afterwards and the copies are removed. The user's data is never changed.
 """
+import contextlib
+
 import bpy
 import numpy as np
 
 from ..core.gltf_tangents import repair_tangents
+from .mesh_io import failures_in_one_line
 from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
 from .material import material_maps, read_material, render_uv_name
 
@@ -122,6 +125,31 @@ def _export_mesh(mesh, uv_map, copy_of, keep=()):
     return copy
 
 
+@contextlib.contextmanager
+def _lights_normalized():
+    """Meanwhile, every light of the scene whose power is not normalized by its size gets the same power normalized.
+
+    A light's ``normalize`` off means its power is ``energy`` times its area (USD's lights come in so); Blender
+    5.0's glTF exporter computes that area with a keyword ``Light.area`` does not take, and fails. With ``energy``
+    set to that product and ``normalize`` on, the exporter writes the intensity it meant to. A light's data shared
+    by objects of different sizes takes its first object's area.
+    """
+    changed = []  # (light data, energy)
+    for obj in bpy.context.scene.objects:
+        light = obj.data if obj.type == "LIGHT" else None
+        if light is None or light.normalize or any(light is data for data, _ in changed):
+            continue
+        changed.append((light, light.energy))
+        light.energy = light.energy * light.area(matrix_world=obj.matrix_world)
+        light.normalize = True
+    try:
+        yield
+    finally:
+        for light, energy in changed:
+            light.normalize = False
+            light.energy = energy
+
+
 def export_glb(runs, path):
     """Export the scene to ``path`` (.glb) with each run's objects on its new UV map, images and materials.
 
@@ -159,7 +187,8 @@ def export_glb(runs, path):
             for obj in mesh_users:
                 obj.data = copy
         options = dict(EXPORT_OPTIONS, export_tangents=_has_tangent_normal_map())
-        bpy.ops.export_scene.gltf(filepath=str(path), **options)
+        with _lights_normalized(), failures_in_one_line("Blender's glTF exporter", cause="the run is not at fault"):
+            bpy.ops.export_scene.gltf(filepath=str(path), **options)
         repair_tangents(path)
     finally:
         for mesh, name, copy, mesh_users in reversed(swapped):

@@ -17,7 +17,7 @@ from ..core.mesh import MeshArrays, concatenate_meshes
 from ..core.settings import MODEL_SUFFIXES
 from .material import base_color_image_node, loss_image_nodes
 
-__all__ = ["import_model", "read_mesh", "read_image", "load_textured_mesh",
+__all__ = ["import_model", "failures_in_one_line", "read_mesh", "read_image", "load_textured_mesh",
            "write_uv_layer", "image_triangle_mask"]
 
 
@@ -49,29 +49,28 @@ def import_model(path):
                          f"{', '.join(MODEL_SUFFIXES)}")
     if not path.is_file():
         raise ValueError(f"model file not found: {path}")
-    with tempfile.TemporaryFile() as printed, tempfile.TemporaryFile() as errors:
-        try:
-            with _output_to(1, printed), _output_to(2, errors):
-                if suffix == ".blend":
-                    bpy.ops.wm.open_mainfile(filepath=str(path))
+    check = " (the Khronos glTF validator tells where)" if suffix in (".gltf", ".glb") else ""
+    try:
+        with failures_in_one_line(_LOADERS[suffix], cause=f"the file is probably invalid{check}"):
+            if suffix == ".blend":
+                bpy.ops.wm.open_mainfile(filepath=str(path))
+            else:
+                # read_homefile keeps the preferences (and so the enabled extensions), unlike
+                # read_factory_settings
+                bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+                if suffix == ".obj":
+                    bpy.ops.wm.obj_import(filepath=str(path))
+                elif suffix == ".fbx":
+                    with _light_shadow_setting():
+                        bpy.ops.import_scene.fbx(filepath=str(path))
+                elif suffix.startswith(".usd"):
+                    bpy.ops.wm.usd_import(filepath=str(path))
                 else:
-                    # read_homefile keeps the preferences (and so the enabled extensions), unlike
-                    # read_factory_settings
-                    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
-                    if suffix == ".obj":
-                        bpy.ops.wm.obj_import(filepath=str(path))
-                    elif suffix == ".fbx":
-                        with _light_shadow_setting():
-                            bpy.ops.import_scene.fbx(filepath=str(path))
-                    elif suffix.startswith(".usd"):
-                        bpy.ops.wm.usd_import(filepath=str(path))
-                    else:
-                        bpy.ops.import_scene.gltf(filepath=str(path))
-        except RuntimeError as error:
-            messages = _read_all(printed) + _read_all(errors)
-            raise ValueError(f"could not load {path}: {_loader_failure(error, suffix, messages)}") from error
-        _write_all(1, _read_all(printed))
-        _write_all(2, _read_all(errors))
+                    bpy.ops.import_scene.gltf(filepath=str(path))
+    except RuntimeError as error:
+        hint = (" (Blender reads binary FBX only: save the file as binary FBX, e.g. with Autodesk's FBX Converter or "
+                "the program that wrote it, or export it as glTF)" if "ASCII FBX" in str(error) else "")
+        raise ValueError(f"could not load {path}: {error}{hint}") from error
     return sorted(bpy.context.scene.objects, key=lambda obj: obj.name)
 
 
@@ -100,23 +99,35 @@ _LOADERS = {".blend": "Blender", ".obj": "the OBJ importer", ".gltf": "the glTF 
             ".fbx": "the FBX importer", **dict.fromkeys((".usd", ".usda", ".usdc", ".usdz"), "the USD importer")}
 
 
-def _loader_failure(error, suffix, messages):
-    """One line for a loader's failure: Blender's own message as it is, or, where a Python importer raised (its
-    traceback is in the message), the exception it ended with and a file that keeps what the loader printed
-    (``messages``, bytes)."""
+@contextlib.contextmanager
+def failures_in_one_line(program, *, cause):
+    """Run a Blender operator with what the process prints held back, and its failure said in one line.
+
+    Blender logs the traceback of an operator written in Python (its glTF and FBX importers, its glTF exporter) to
+    both standard streams itself, and the operator's RuntimeError holds it too. Meanwhile the process's output
+    goes to temporary files: written out again when the operator succeeds; when it raises, the RuntimeError is
+    raised again as one line: Blender's own message as it is, or, where a traceback is in it, ``program``, the
+    exception it ended with, ``cause`` and a file in the temporary folder that keeps what was printed.
+    """
+    with tempfile.TemporaryFile() as printed, tempfile.TemporaryFile() as errors:
+        try:
+            with _output_to(1, printed), _output_to(2, errors):
+                yield
+        except RuntimeError as error:
+            raise RuntimeError(_failure_line(error, program, cause, _read_all(printed) + _read_all(errors))) from error
+        _write_all(1, _read_all(printed))
+        _write_all(2, _read_all(errors))
+
+
+def _failure_line(error, program, cause, messages):
     lines = [line.strip() for line in str(error).splitlines() if line.strip()]
     if not any("Traceback (most recent call last)" in line for line in lines):
-        if suffix == ".fbx" and any("ASCII FBX" in line for line in lines):
-            lines.append("(Blender reads binary FBX only: save the file as binary FBX, e.g. with Autodesk's FBX "
-                         "Converter or the program that wrote it, or export it as glTF)")
         return " ".join(lines)
     raised = [line for line in lines if not line.startswith(("Location:", "File ", "^", "~", "[Previous line"))]
-    handle, kept = tempfile.mkstemp(prefix="perceptual_uv-import-", suffix=".txt")
+    handle, kept = tempfile.mkstemp(prefix="perceptual_uv-blender-", suffix=".txt")
     with os.fdopen(handle, "wb") as out:
         out.write(messages or str(error).encode())
-    check = " (the Khronos glTF validator tells where)" if suffix in (".gltf", ".glb") else ""
-    return (f"{_LOADERS[suffix]} failed on it ({raised[-1]}): the file is probably invalid{check}; the importer's "
-            f"messages are in {kept}")
+    return f"{program} failed on it ({raised[-1]}): {cause}; its messages are in {kept}"
 
 
 @contextlib.contextmanager

@@ -5,6 +5,7 @@ animations), the new UV map as the optimized meshes' only texture coordinates, t
 material, no loss-overlay colours, and 0 errors from the Khronos glTF validator.
 """
 import json
+import math
 import pathlib
 import struct
 import subprocess
@@ -487,3 +488,25 @@ def test_a_map_left_on_another_uv_map_keeps_its_coordinates_after_the_new_ones(e
     reason = gltf_validate.unavailable()
     if reason is None:
         assert gltf_validate.validate(out)["errors"] == 0
+
+
+def test_a_light_whose_power_is_not_normalized_exports_the_power_it_gives(empty_scene, tmp_path):
+    """USD's lights come in with ``normalize`` off (power = energy x area); Blender 5.0's exporter failed on them.
+    A point light of radius 0.5 m (a sphere of area 4 pi 0.5^2 = pi m^2) and 100 W not normalized gives what a
+    normalized one of 100 pi W gives."""
+    from perceptual_uv.bridge.gltf_export import export_glb
+
+    def scene_with(energy, normalize, out):
+        reset_blender_scene()
+        light = bpy.data.lights.new("Bulb", "POINT")
+        light.shadow_soft_size, light.energy, light.normalize = 0.5, energy, normalize
+        bpy.context.scene.collection.objects.link(bpy.data.objects.new("Bulb", light))
+        export_glb([], out)
+        return light
+
+    light = scene_with(100.0, False, tmp_path / "raw.glb")
+    assert (light.energy, light.normalize) == (100.0, False)  # the user's light is left as it was
+    scene_with(100.0 * math.pi, True, tmp_path / "normalized.glb")
+    (raw,), (normalized,) = (read_glb(tmp_path / name)[0]["extensions"]["KHR_lights_punctual"]["lights"]
+                             for name in ("raw.glb", "normalized.glb"))
+    assert raw["intensity"] == pytest.approx(normalized["intensity"], rel=1e-6) and normalized["intensity"] > 0
