@@ -61,8 +61,13 @@ def texture_groups(objects):
     for obj, image in first_image.values():
         groups.setdefault(image.name, (image, []))[1].append(obj)
     if not groups:
+        empty = sorted({slot.material.name for obj in meshes for slot in obj.material_slots if slot.material
+                        and not any(node.type == "OUTPUT_MATERIAL" for node in getattr(slot.material.node_tree,
+                                                                                         "nodes", ()))})
+        why = (f" ({len(empty)} of their materials have no shader nodes, e.g. '{empty[0]}': an importer left them "
+               "empty, as Blender's USD importer does with MaterialX materials)" if empty else "")
         raise ValueError("no mesh in the file has a material that reads an image texture through a UV map: there "
-                         "is no texture to optimize for")
+                         f"is no texture to optimize for{why}")
     return [groups[name] for name in sorted(groups)]
 
 

@@ -178,6 +178,23 @@ def test_no_image_texture_is_refused():
     refused([obj], match="no material that reads an image texture")
 
 
+def test_materials_an_importer_left_empty_are_named_when_no_texture_is_found():
+    from perceptual_uv.bridge.texture_sets import texture_groups
+
+    first = textured_grid("first")
+    second = textured_grid("second", location=(2.0, 0.0, 0.0))
+    for obj in (first, second):  # as Blender's USD importer leaves a MaterialX material: no nodes at all
+        obj.material_slots[0].material.node_tree.nodes.clear()
+    with pytest.raises(ValueError) as error:
+        texture_groups([first, second])
+    assert str(error.value).endswith("(2 of their materials have no shader nodes, e.g. 'first_material': an importer "
+                                     "left them empty, as Blender's USD importer does with MaterialX materials)")
+    tree = first.material_slots[0].material.node_tree  # one with an output node and no image: not named
+    tree.nodes.new("ShaderNodeOutputMaterial")
+    with pytest.raises(ValueError, match=r"\(1 of their materials have no shader nodes, e.g. 'second_material'"):
+        texture_groups([first, second])
+
+
 def test_missing_image_file_is_refused_with_its_path(tmp_path):
     missing = tmp_path / "gone.png"
     image = bpy.data.images.new("gone.png", 4, 4)
