@@ -90,7 +90,7 @@ def test_cost_and_resolution_are_exclusive():
 
 
 @pytest.mark.parametrize("args, fragment", [
-    (["optimize", "model.fbx", "--out", "x.blend"], "unsupported input type"),
+    (["optimize", "model.stl", "--out", "x.blend"], "unsupported input type"),
     (["optimize", str(SPOT), "--out", "x.png"], "unsupported output type"),
     (["optimize", str(SPOT), "--out", "x.blend", "--epsilon", "0"], "epsilon 0.0: must be in (0, 1)"),
     (["optimize", str(SPOT), "--out", "x.blend", "--resolution", "4"], "resolution 4"),

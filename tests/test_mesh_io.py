@@ -142,9 +142,9 @@ def test_write_uv_layer_averages_corners_shared_inside_a_quad(empty_scene):
 def test_errors_are_value_errors(tmp_path, spot):
     with pytest.raises(ValueError, match="not found"):
         mesh_io.import_model(tmp_path / "missing.obj")
-    (tmp_path / "model.fbx").write_text("")
+    (tmp_path / "model.stl").write_text("")
     with pytest.raises(ValueError, match="unsupported model type"):
-        mesh_io.import_model(tmp_path / "model.fbx")
+        mesh_io.import_model(tmp_path / "model.stl")
     with pytest.raises(ValueError, match="no UV map 'Nope'"):
         mesh_io.read_mesh(spot, uv_name="Nope")
     mesh = mesh_io.read_mesh(spot)
