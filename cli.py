@@ -41,7 +41,7 @@ from .core.progress import wait_for_threads  # noqa: E402
 # After the script bootstrap above:
 from .core.settings import COST_MEASURES, COST_ROLES, MODEL_SUFFIXES, OptimizeSettings  # noqa: E402
 
-OUTPUT_SUFFIXES = (".blend", ".glb")
+OUTPUT_SUFFIXES = (".blend", ".glb", ".fbx")
 
 
 DEFAULTS = OptimizeSettings()
@@ -69,7 +69,7 @@ def _existing_model(text):
 def _output_model(text):
     path = pathlib.Path(text)
     if path.suffix.lower() not in OUTPUT_SUFFIXES:
-        raise argparse.ArgumentTypeError(f"{text}: unsupported output type (expected .blend or .glb)")
+        raise argparse.ArgumentTypeError(f"{text}: unsupported output type (expected .blend, .glb or .fbx)")
     return path
 
 
@@ -153,7 +153,8 @@ def _add_batch_options(batch):
                             ".usd/.usda/.usdc/.usdz) or globs")
     batch.add_argument("--out", required=True, type=pathlib.Path,
                        help="output folder: the input tree mirrored, one folder per asset, manifest and summary")
-    batch.add_argument("--format", choices=("blend", "glb"), default="blend", help="output format (default blend)")
+    batch.add_argument("--format", choices=("blend", "glb", "fbx"), default="blend",
+                       help="output format (default blend)")
     batch.add_argument("--scheduler", metavar="ADDRESS",
                        help="Dask scheduler address, e.g. tcp://host:8786 (default: a local cluster)")
     batch.add_argument("--workers", dest="dask_workers", type=int, default=None, metavar="N",
@@ -180,7 +181,7 @@ def build_parser():
     optimize.add_argument("--scheduler", metavar="ADDRESS",
                           help="Dask scheduler (e.g. tcp://host:8786): the triangle-wise stage runs on every worker "
                                "of that cluster, with the same results as here (needs dask and distributed)")
-    optimize.add_argument("--out", required=True, type=_output_model, help="OUT.blend or OUT.glb")
+    optimize.add_argument("--out", required=True, type=_output_model, help="OUT.blend, OUT.glb or OUT.fbx")
     optimize.add_argument("--report", type=pathlib.Path, help="write the JSON report here")
 
     batch = commands.add_parser("batch", help="optimize every model of an asset library on Dask (resumable)")

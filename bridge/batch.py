@@ -150,6 +150,10 @@ def optimize_file(args):
                     from .gltf_export import export_glb
 
                     export_glb(runs, temporary)
+                elif out.suffix.lower() == ".fbx":
+                    from .fbx_export import export_fbx
+
+                    export_fbx(runs, temporary)
                 else:
                     bpy.ops.wm.save_as_mainfile(filepath=str(temporary), copy=True, relative_remap=True)
             except RuntimeError as error:  # Blender's save and export report I/O failures this way

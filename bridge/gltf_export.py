@@ -26,7 +26,7 @@ from .mesh_io import failures_in_one_line
 from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
 from .material import material_maps, read_material, render_uv_name
 
-__all__ = ["export_glb", "EXPORT_OPTIONS"]
+__all__ = ["export_glb", "meshes_for_export", "EXPORT_OPTIONS"]
 
 # Blender 5.0's glTF exporter, spelled out where its default would drop part of the input (lights, cameras,
 # custom properties as extras) or where this tool needs it (tangents for normal maps baked in the new UV map, set
@@ -166,6 +166,18 @@ def export_glb(runs, path):
     RuntimeError
         Blender's exporter failed (an I/O error, for instance).
     """
+    with meshes_for_export(runs):
+        options = dict(EXPORT_OPTIONS, export_tangents=_has_tangent_normal_map())
+        with _lights_normalized(), failures_in_one_line("Blender's glTF exporter", cause="the run is not at fault"):
+            bpy.ops.export_scene.gltf(filepath=str(path), **options)
+        repair_tangents(path)
+
+
+@contextlib.contextmanager
+def meshes_for_export(runs):
+    """Meanwhile, each optimized object shows an export copy of its mesh (:func:`_export_mesh`: the new UV map
+    first, no loss overlay, the material copies) under the mesh's name; afterwards the objects get their own mesh
+    back and the copies are removed. ``runs`` as :func:`export_glb` takes them."""
     meshes, copy_of = {}, {}  # mesh: (its new UV map, the objects that use it); original material: its copy
     for objects, result in runs:
         users, copies = _optimized_meshes(objects, result.uv_map, result.materials)
@@ -183,13 +195,10 @@ def export_glb(runs, path):
             name = mesh.name
             swapped.append((mesh, name, copy, mesh_users))
             mesh.name = f"{name}.perceptual_export_source"
-            copy.name = name  # the glTF mesh keeps the input's name
+            copy.name = name  # the exported mesh keeps the input's name
             for obj in mesh_users:
                 obj.data = copy
-        options = dict(EXPORT_OPTIONS, export_tangents=_has_tangent_normal_map())
-        with _lights_normalized(), failures_in_one_line("Blender's glTF exporter", cause="the run is not at fault"):
-            bpy.ops.export_scene.gltf(filepath=str(path), **options)
-        repair_tangents(path)
+        yield
     finally:
         for mesh, name, copy, mesh_users in reversed(swapped):
             for obj in mesh_users:

@@ -158,7 +158,7 @@ def run_asset(job, attempt):
     ----------
     job : dict
         ``run_id``, ``input``, ``folder`` (the asset's output folder), ``name`` (output stem), ``format``
-        ("blend" or "glb"), ``options`` (optimize options), ``timeout`` (seconds or None), ``blender`` (path or
+        ("blend", "glb" or "fbx"), ``options`` (optimize options), ``timeout`` (seconds or None), ``blender`` (path or
         None), ``log`` (log file of the child's output), ``base`` (the batch's output folder).
     attempt : int
         1 for the first attempt.

@@ -6,6 +6,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy")
@@ -480,3 +481,31 @@ def test_an_ascii_fbx_is_refused_in_one_line_that_says_what_to_do(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "ASCII FBX files are not supported" in lines[0]
     assert "save the file as binary FBX" in lines[0]
+
+
+def test_an_fbx_output_holds_the_new_uv_map_alone_the_copies_and_the_new_image(patch_fbx, tmp_path):
+    from perceptual_uv.bridge.mesh_io import import_model
+
+    out, report_path = tmp_path / "out.fbx", tmp_path / "report.json"
+    result = run_cli("optimize", str(patch_fbx), "--out", str(out), "--report", str(report_path), *FAST_ARGS)
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(report_path.read_text())
+
+    objects = import_model(out)
+    assert sorted(obj.type for obj in objects) == ["LIGHT", "MESH"]  # the scene as it was
+    (obj,) = [obj for obj in objects if obj.type == "MESH"]
+    mesh = obj.data
+    assert [layer.name for layer in mesh.uv_layers] == ["PerceptualUV"] and not mesh.color_attributes
+    images = [node.image for node in obj.material_slots[0].material.node_tree.nodes if node.type == "TEX_IMAGE"]
+    assert [(image.name, tuple(image.size), image.packed_file is not None) for image in images] == [
+        ("spot_texture_perceptual", (report["resolution"], report["resolution"]), True)]  # embedded
+    # The UV set is the packed new UV map: its triangles cover what the report measured on it.
+    uv = np.empty(2 * len(mesh.loops), dtype=np.float64)
+    mesh.uv_layers[0].uv.foreach_get("vector", uv)
+    mesh.calc_loop_triangles()
+    corners = np.empty(3 * len(mesh.loop_triangles), dtype=np.int64)
+    mesh.loop_triangles.foreach_get("loops", corners)
+    triangles = uv.reshape(-1, 2)[corners.reshape(-1, 3)]
+    edges = triangles[:, 1:] - triangles[:, :1]
+    area = 0.5 * np.abs(edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]).sum()
+    assert area == pytest.approx(report["image_coverage"], rel=1e-3)

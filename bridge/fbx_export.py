@@ -1,0 +1,52 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Write a finished run as an .fbx: the whole scene of the input, with the optimized meshes on their new UV map.
+
+The counterpart of :mod:`.gltf_export` for engines and tools that take FBX (Unity, Unreal, most DCC tools): the
+same export copies of the optimized meshes (:func:`.gltf_export.meshes_for_export`: the new UV map as the first
+UV set, which engines read textures through, no loss overlay, the run's material copies), written by Blender's
+FBX exporter with every object type, the armature as it is (its modifiers live, so skinning is exported as a
+skin, without leaf bones), the animations, and the images embedded in the file. FBX materials carry the base
+colour, normal, roughness, metallic, emission and alpha maps that Blender's exporter recognizes on a Principled
+BSDF; a packed occlusion-roughness-metallic image read through Separate Color is not one of them, as FBX has no
+such slot.
+"""
+import bpy
+
+from .gltf_export import meshes_for_export
+from .mesh_io import failures_in_one_line
+
+__all__ = ["export_fbx", "EXPORT_OPTIONS"]
+
+# Blender 5.0's FBX exporter, spelled out where its default would not keep the scene as it is.
+EXPORT_OPTIONS = dict(
+    use_selection=False,        # the whole scene, not just the optimized meshes
+    use_visible=False,
+    use_active_collection=False,
+    object_types={"ARMATURE", "CAMERA", "EMPTY", "LIGHT", "MESH", "OTHER"},
+    use_mesh_modifiers=False,   # the armature stays a skin, shape keys stay shape keys
+    mesh_smooth_type="FACE",    # smoothing groups from the normals, for engines that read them
+    use_custom_props=True,
+    add_leaf_bones=False,       # no extra bones the input did not have
+    bake_anim=True,
+    path_mode="COPY",
+    embed_textures=True,        # one file, as a .glb is
+    check_existing=False,
+)
+
+
+def export_fbx(runs, path):
+    """Export the scene to ``path`` (.fbx) with each run's objects on its new UV map, images and materials.
+
+    Parameters
+    ----------
+    runs : sequence of (sequence of bpy.types.Object, perceptual_uv.bridge.pipeline.PipelineResult)
+        As :func:`.gltf_export.export_glb` takes them.
+    path : str or os.PathLike
+
+    Raises
+    ------
+    RuntimeError
+        Blender's exporter failed (in one line, :func:`.mesh_io.failures_in_one_line`).
+    """
+    with meshes_for_export(runs), failures_in_one_line("Blender's FBX exporter", cause="the run is not at fault"):
+        bpy.ops.export_scene.fbx(filepath=str(path), **EXPORT_OPTIONS)
