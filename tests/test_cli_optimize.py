@@ -509,3 +509,22 @@ def test_an_fbx_output_holds_the_new_uv_map_alone_the_copies_and_the_new_image(p
     edges = triangles[:, 1:] - triangles[:, :1]
     area = 0.5 * np.abs(edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]).sum()
     assert area == pytest.approx(report["image_coverage"], rel=1e-3)
+
+
+def test_an_fbx_output_leaves_out_the_bone_shapes_the_gltf_importer_made(empty_scene, tmp_path):
+    from perceptual_uv.bridge.fbx_export import GLTF_NOT_EXPORTED, export_fbx
+    from perceptual_uv.bridge.mesh_io import import_model
+
+    for name in ("Body", "Icosphere"):
+        mesh = bpy.data.meshes.new(name)
+        mesh.from_pydata([(0, 0, 0), (1, 0, 0), (0, 1, 0)], [], [(0, 1, 2)])
+        bpy.data.objects.new(name, mesh)
+    empty_scene.collection.objects.link(bpy.data.objects["Body"])
+    shapes = bpy.data.collections.new(GLTF_NOT_EXPORTED)  # as the glTF importer keeps a bone's shape
+    empty_scene.collection.children.link(shapes)
+    shapes.objects.link(bpy.data.objects["Icosphere"])
+
+    export_fbx([], tmp_path / "out.fbx")
+
+    assert [child.name for child in empty_scene.collection.children] == [GLTF_NOT_EXPORTED]  # linked back
+    assert [obj.name for obj in import_model(tmp_path / "out.fbx")] == ["Body"]
