@@ -9,7 +9,7 @@ import re
 import struct
 import urllib.parse
 
-__all__ = ["external_files"]
+__all__ = ["external_files", "forget_folder_listings"]
 
 _USD_LAYERS = (".usd", ".usda", ".usdc")
 
@@ -98,10 +98,16 @@ def _fbx_images(path):
     return found
 
 
+def forget_folder_listings():
+    """Look at the folders' files afresh from now on (a batch's plan does, :func:`.inputs.plan_assets`): an .fbx's
+    images are searched for in one listing per folder, kept until then."""
+    _files_named.cache_clear()
+
+
 @functools.lru_cache(maxsize=64)
 def _files_named(folder):
-    """Every file below ``folder`` by its lower-case name (one walk per folder between two plans,
-    :func:`plan_assets`)."""
+    """Every file below ``folder`` by its lower-case name (one walk per folder until
+    :func:`forget_folder_listings`)."""
     names = {}
     for root, _, files in sorted(os.walk(folder)):
         for name in sorted(files):

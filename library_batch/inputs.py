@@ -8,7 +8,7 @@ import os
 import pathlib
 
 from ..core.settings import MODEL_SUFFIXES
-from .external_files import _files_named, external_files
+from .external_files import external_files, forget_folder_listings
 
 __all__ = ["Asset", "find_models", "external_files", "content_key", "plan_assets"]
 
@@ -181,7 +181,7 @@ def plan_assets(models, roots, *, out, settings):
     The mirrored tree starts at the common folder of ``roots``. Two models of one folder with the same stem
     (``a.obj`` and ``a.glb``) get folders named ``a_obj`` and ``a_glb``.
     """
-    _files_named.cache_clear()  # one look at the folders' files per plan
+    forget_folder_listings()  # one look at the folders' files per plan
     out = pathlib.Path(out).resolve()
     base = pathlib.Path(os.path.commonpath([str(r) for r in roots])) if roots else pathlib.Path("/")
     relatives = [pathlib.PurePosixPath(pathlib.Path(os.path.relpath(m, base)).as_posix()) for m in models]
