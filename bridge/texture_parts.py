@@ -22,7 +22,7 @@ import bmesh
 import bpy
 import numpy as np
 
-from ..core.progress import run_generator
+from ..core.progress import report_while_waiting, run_generator
 from .loss_overlay import LOSS_ATTRIBUTE, write_polygon_losses
 from .material import loss_image_nodes
 from .pipeline import Progress
@@ -74,9 +74,9 @@ def split_by_texture(obj):
 
 
 def iter_split_by_texture(obj):
-    """Generator: :func:`split_by_texture`, yielding a :class:`.pipeline.Progress` of the ``read`` stage after each
-    part it makes (a part copies the whole mesh: about 3 microseconds per face of the object on this project's
-    machine).
+    """Generator: :func:`split_by_texture`, yielding a :class:`.pipeline.Progress` of the ``read`` stage a few
+    times while it makes each part (a part copies the whole mesh: about 3 microseconds per face of the object on
+    this project's machine, in four steps of at most a third of it) and once after it.
 
     Returns
     -------
@@ -94,41 +94,55 @@ def iter_split_by_texture(obj):
     images = list(dict.fromkeys(textures[index] for index in used if textures[index] is not None))
     if len(images) < 2:
         return []
+    # The parts shade as the object does at every corner they keep (the tangent-space normal maps are baked in
+    # their frame): without faces beyond a texture border, the smooth normals there would lean away.
+    normals = np.empty((len(mesh.loops), 3), dtype=np.float32)
+    mesh.corner_normals.foreach_get("vector", normals.ravel())
     parts = []
+
+    def progress():
+        done = f"{len(parts)}/{len(images)}"
+        return Progress("read", len(parts), len(images), f"Splitting '{obj.name}' by texture: {done}")
+
     try:
         for image in images:
             slots = np.array([index for index in used if textures[index] == image])
-            parts.append(_part(obj, image, slots, ~np.isin(material_index, slots)))
-            yield Progress("read", len(parts), len(images), f"Splitting '{obj.name}' by texture: "
-                                                             f"{len(parts)}/{len(images)}")
+            making = _iter_part(obj, image, slots, ~np.isin(material_index, slots), normals)
+            try:
+                parts.append((yield from report_while_waiting(making, progress())))
+            finally:
+                making.close()  # removes what a part cut off made; nothing once it has returned
+            yield progress()
     except BaseException:
         remove_parts(parts)
         raise
     return parts
 
 
-def _part(obj, image, slots, drop):
-    # The part shades as the object does at every corner it keeps (the tangent-space normal maps are baked in its
-    # frame): without faces beyond a texture border, the smooth normals there would lean away.
-    normals = np.empty(3 * len(obj.data.loops), dtype=np.float32)
-    obj.data.corner_normals.foreach_get("vector", normals)
+def _iter_part(obj, image, slots, drop, normals):
+    """Generator: one part (:class:`TexturePart`), yielding None between the steps that copy the mesh, read it into
+    a BMesh, drop the other textures' faces, and set the part's normals, slots and object. Closing it removes what
+    it made."""
     mesh = obj.data.copy()
     try:
         mesh.name = f"{obj.data.name}.{image.name}.part"
         mesh.attributes.new(_CORNER, "INT", "CORNER").data.foreach_set("value", np.arange(len(mesh.loops)))
         mesh.attributes.new(_FACE, "INT", "FACE").data.foreach_set("value", np.arange(len(mesh.polygons)))
         materials = [obj.material_slots[int(index)].material for index in slots]
+        yield
         bm = bmesh.new()
         try:
             bm.from_mesh(mesh)
+            yield
             bm.faces.ensure_lookup_table()
             bmesh.ops.delete(bm, geom=[bm.faces[int(index)] for index in np.flatnonzero(drop)], context="FACES")
             bm.to_mesh(mesh)
         finally:
             bm.free()
+        yield
         corners = _take_attribute(mesh, _CORNER, len(mesh.loops))
         faces = _take_attribute(mesh, _FACE, len(mesh.polygons))
-        mesh.normals_split_custom_set(normals.reshape(-1, 3)[corners])
+        mesh.normals_split_custom_set(normals[corners])
         old_index = np.empty(len(mesh.polygons), dtype=np.int32)
         mesh.polygons.foreach_get("material_index", old_index)
         old_index = np.clip(old_index, 0, len(obj.material_slots) - 1)  # as the faces were chosen
