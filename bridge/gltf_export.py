@@ -135,7 +135,7 @@ def _lights_normalized():
     by objects of different sizes takes its first object's area.
     """
     changed = []  # (light data, energy)
-    for obj in bpy.context.scene.objects:
+    for obj in bpy.data.objects:  # the exporter writes every scene
         light = obj.data if obj.type == "LIGHT" else None
         if light is None or light.normalize or any(light is data for data, _ in changed):
             continue
