@@ -60,7 +60,10 @@ def external_files(path):
         files = _fbx_images(path)
     elif suffix in _USD_LAYERS:
         files = _usd_files(path, set())
-    return list(dict.fromkeys(files))
+    unique = {}  # each file once, by the first name it is given
+    for file in files:
+        unique.setdefault(file.resolve(), file)
+    return list(unique.values())
 
 
 # An image file's extension; in an FBX file, the bytes that end the name before it: binary FBX keeps strings as
@@ -117,8 +120,8 @@ def _files_named(folder):
 
 def _usd_files(path, seen):
     """The layers (sublayers, references, payloads) and image files a USD layer names, and theirs in turn, as
-    paths relative to the layer's folder or absolute (``seen``: the layers already listed)."""
-    seen.add(path)
+    paths relative to the layer's folder or absolute (``seen``: the layers already read, resolved)."""
+    seen.add(path.resolve())
     try:
         data = path.read_bytes()
     except OSError:
@@ -136,7 +139,7 @@ def _usd_files(path, seen):
         if not named.is_file():
             continue
         files.append(named)
-        if suffix in _USD_LAYERS and named not in seen:
+        if suffix in _USD_LAYERS and named.resolve() not in seen:
             files += _usd_files(named, seen)
     return files
 

@@ -429,3 +429,13 @@ def test_lz4_block_of_literals_and_an_overlapping_back_reference():
                             + (2).to_bytes(4, "little") + b"\x10?") == b"abcabcabc!?"
     # lengths past 15 continue in the next bytes: 15 + 255 + 3 = 273 literals
     assert _lz4_block(b"\xf0\xff\x03" + b"x" * 273) == b"x" * 273
+
+
+def test_usd_layers_that_reference_each_other_are_each_listed_once(tmp_path):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "a.usda").write_text('#usda 1.0\n(\n    subLayers = [@./sub/b.usda@]\n)\n')
+    (tmp_path / "sub" / "b.usda").write_text('#usda 1.0\n(\n    subLayers = [@../a.usda@, @../sub/../a.usda@]\n)\n'
+                                              'def "T" { asset inputs:file = @../t.png@ }\n')
+    (tmp_path / "t.png").write_bytes(b"p")
+    assert external_files(tmp_path / "a.usda") == [tmp_path / "sub" / "b.usda", tmp_path / "sub" / ".." / "a.usda",
+                                                   tmp_path / "sub" / ".." / "t.png"]
