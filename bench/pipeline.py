@@ -7,9 +7,9 @@ Usage::
 
 Each model runs in a fresh process (``--models`` takes model folders or files) at the default settings, driving
 the job that ``optimize`` and the modal operator run (every texture of the file, one run each:
-``bridge.texture_sets.iter_optimize_textures``) the way the operator does: one ``next`` per step. Printed per model and revision:
-the stage times of the report (``read`` is everything before the triangle-wise stage), the triangle-wise stage
-in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
+``bridge.texture_sets.iter_optimize_textures``) the way the operator does: one ``next`` per step. Printed per
+model and revision: the stage times of the report (``read`` is everything before the triangle-wise stage), the
+triangle-wise stage in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
 freezes for as long as one step takes), and the peak memory of the run's whole process tree (the pipeline
 process and its worker or bake processes, sampled every 0.1 s): the sum of their resident sizes, and the sum of
 their proportional set sizes, which counts the pages they share (the workers' shared arrays) once, with the stage

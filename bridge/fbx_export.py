@@ -6,10 +6,10 @@ same export copies of the optimized meshes (:func:`.gltf_export.meshes_for_expor
 UV set, which engines read textures through, no loss overlay, the run's material copies), written by Blender's
 FBX exporter with every object type, the armature as it is (its modifiers live, so skinning is exported as a
 skin, without leaf bones), the animations, and the images embedded in the file; the bone shapes Blender's glTF
-importer makes are left out, as its glTF exporter leaves them out. FBX materials carry the base
-colour, normal, roughness, metallic, emission and alpha maps that Blender's exporter recognizes on a Principled
-BSDF; a packed occlusion-roughness-metallic image read through Separate Color is not one of them, as FBX has no
-such slot.
+importer makes are left out, as its glTF exporter leaves them out. FBX materials carry the maps that Blender's
+exporter recognizes on a Principled BSDF (WaterBottle's base colour, normal and emission maps come through); an
+occlusion-roughness-metallic image read through Separate Color is not one of them, and stays in the image file
+saved beside the output.
 """
 import contextlib
 

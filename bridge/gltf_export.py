@@ -22,9 +22,9 @@ import bpy
 import numpy as np
 
 from ..core.gltf_tangents import repair_tangents
-from .mesh_io import failures_in_one_line
 from .loss_overlay import LOSS_ATTRIBUTE, LOSS_COLOR_ATTRIBUTE
 from .material import material_maps, read_material, render_uv_name
+from .mesh_io import failures_in_one_line
 
 __all__ = ["export_glb", "meshes_for_export", "EXPORT_OPTIONS"]
 
@@ -127,7 +127,7 @@ def _export_mesh(mesh, uv_map, copy_of, keep=()):
 
 @contextlib.contextmanager
 def _lights_normalized():
-    """Meanwhile, every light of the scene whose power is not normalized by its size gets the same power normalized.
+    """Meanwhile, every light of the file whose power is not normalized by its size gets the same power normalized.
 
     A light's ``normalize`` off means its power is ``energy`` times its area (USD's lights come in so); Blender
     5.0's glTF exporter computes that area with a keyword ``Light.area`` does not take, and fails. With ``energy``
