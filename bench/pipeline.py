@@ -5,19 +5,19 @@ Usage::
     .venv/bin/python bench/pipeline.py --models ../shared/models/spot ../shared/models/bob \
         [--against REV] [--workers 2] [--iterations 100] [--operator] [--set NAME=VALUE ...] [--json OUT.json]
 
-Each model runs in a fresh process (``--models`` takes model folders or files) at the default settings, driving
-the job that ``optimize`` and the modal operator run (every texture of the file, one run each:
-``bridge.texture_sets.iter_optimize_textures``) the way the operator does: one ``next`` per step. Printed per
-model and revision: the stage times of the report (``read`` is everything before the triangle-wise stage), the
-triangle-wise stage in ms per optimized face, the longest single step of the generator and the stage it belongs to (the interface
-freezes for as long as one step takes), and the peak memory of the run's whole process tree (the pipeline
-process and its worker or bake processes, sampled every 0.1 s): the sum of their resident sizes, and the sum of
-their proportional set sizes, which counts the pages they share (the workers' shared arrays) once, with the stage
-it came in and how it splits between the pipeline process and the others; below each row, the five longest steps
-with the stage and message of the progress report they follow, and how many cores were busy on average during
-each stage (the CPU time of the whole process tree over the stage's wall time: where it stays below the cores,
-a stage waits on one process). ``--json`` also holds each stage's peak (``peak_by_stage``, proportional) and
-CPU and wall seconds (``cpu_by_stage``).
+Each model runs in a fresh process (``--models`` takes model folders or files) at the default settings, driving the
+job that ``optimize`` and the modal operator run (every texture of the file, one run each:
+``bridge.texture_sets.iter_optimize_textures``) the way the operator does: one ``next`` per step. Printed per model
+and revision: the stage times of the report (``read`` is everything before the triangle-wise stage), the
+triangle-wise stage in ms per optimized face, the longest single step of the generator and the stage it belongs to
+(the interface freezes for as long as one step takes), and the peak memory of the run's whole process tree (the
+pipeline process and its worker or bake processes, sampled every 0.1 s): the sum of their resident sizes, and the
+sum of their proportional set sizes, which counts the pages they share (the workers' shared arrays) once, with the
+stage it came in and how it splits between the pipeline process and the others; below each row, the five longest
+steps with the stage and message of the progress report they follow, and how many cores were busy on average during
+each stage (the CPU time of the whole process tree over the stage's wall time: where it stays below the cores, a
+stage waits on one process). ``--json`` also holds each stage's peak (``peak_by_stage``, proportional) and CPU and
+wall seconds (``cpu_by_stage``).
 
 ``--operator`` runs with the settings the modal operator adds to the defaults (``bake_in_background``), the way
 "Optimize UVs" drives the pipeline in the interface; ``--set NAME=VALUE`` sets any field of
