@@ -39,7 +39,7 @@ if __name__ == "__main__" and not __package__:  # blender -b FILE --python cli.p
 
 from .core.progress import wait_for_threads  # noqa: E402
 # After the script bootstrap above:
-from .core.settings import COST_MEASURES, COST_ROLES, MODEL_SUFFIXES, OptimizeSettings  # noqa: E402
+from .core.settings import COST_MEASURES, COST_ROLES, MODEL_SUFFIXES, OptimizeSettings, suffix_listing  # noqa: E402
 
 OUTPUT_SUFFIXES = (".blend", ".glb", ".fbx")
 
@@ -60,7 +60,7 @@ def _existing_model(text):
     path = pathlib.Path(text)
     if path.suffix.lower() not in MODEL_SUFFIXES:
         raise argparse.ArgumentTypeError(
-            f"{text}: unsupported input type (expected one of {', '.join(MODEL_SUFFIXES)})")
+            f"{text}: unsupported input type (expected {suffix_listing(MODEL_SUFFIXES)})")
     if not path.is_file():
         raise argparse.ArgumentTypeError(f"{text}: no such file")
     return path
@@ -69,7 +69,8 @@ def _existing_model(text):
 def _output_model(text):
     path = pathlib.Path(text)
     if path.suffix.lower() not in OUTPUT_SUFFIXES:
-        raise argparse.ArgumentTypeError(f"{text}: unsupported output type (expected .blend, .glb or .fbx)")
+        raise argparse.ArgumentTypeError(f"{text}: unsupported output type (expected "
+                                         f"{suffix_listing(OUTPUT_SUFFIXES)})")
     return path
 
 
@@ -149,11 +150,11 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
 def _add_batch_options(batch):
     """``batch``'s own options; the optimization settings come from :func:`_add_optimize_options`."""
     batch.add_argument("inputs", metavar="INPUT", nargs="+",
-                       help="model files, folders (searched recursively for .blend, .glb/.gltf, .obj, .fbx, "
-                            ".usd/.usda/.usdc/.usdz) or globs")
+                       help=f"model files, folders (searched recursively for {suffix_listing(MODEL_SUFFIXES)} "
+                            "files) or globs")
     batch.add_argument("--out", required=True, type=pathlib.Path,
                        help="output folder: the input tree mirrored, one folder per asset, manifest and summary")
-    batch.add_argument("--format", choices=("blend", "glb", "fbx"), default="blend",
+    batch.add_argument("--format", choices=tuple(suffix[1:] for suffix in OUTPUT_SUFFIXES), default="blend",
                        help="output format (default blend)")
     batch.add_argument("--scheduler", metavar="ADDRESS",
                        help="Dask scheduler address, e.g. tcp://host:8786 (default: a local cluster)")
@@ -176,12 +177,13 @@ def build_parser():
 
     optimize = commands.add_parser("optimize", help="optimize the UV map of a model and bake its texture")
     optimize.add_argument("input", metavar="IN", type=_existing_model,
-                          help=".blend, .glb/.gltf, .obj, .fbx or .usd/.usda/.usdc/.usdz")
+                          help=suffix_listing(MODEL_SUFFIXES))
     _add_optimize_options(optimize)
     optimize.add_argument("--scheduler", metavar="ADDRESS",
                           help="Dask scheduler (e.g. tcp://host:8786): the triangle-wise stage runs on every worker "
                                "of that cluster, with the same results as here (needs dask and distributed)")
-    optimize.add_argument("--out", required=True, type=_output_model, help="OUT.blend, OUT.glb or OUT.fbx")
+    optimize.add_argument("--out", required=True, type=_output_model,
+                          help=suffix_listing(tuple("OUT" + suffix for suffix in OUTPUT_SUFFIXES)))
     optimize.add_argument("--report", type=pathlib.Path, help="write the JSON report here")
 
     batch = commands.add_parser("batch", help="optimize every model of an asset library on Dask (resumable)")

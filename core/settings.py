@@ -1,11 +1,16 @@
 """The options of one optimization run, shared by the operator, the sidebar, the CLI and the pipeline."""
 import dataclasses
 
-__all__ = ["OptimizeSettings", "COST_ROLES", "COST_MEASURES", "MODEL_SUFFIXES", "role_cost"]
+__all__ = ["OptimizeSettings", "COST_ROLES", "COST_MEASURES", "MODEL_SUFFIXES", "suffix_listing", "role_cost"]
 
 # The model files a run reads (``bridge.mesh_io.import_model``), lower case: here, where the command line and the
 # batch orchestrator can check an input without importing ``bridge``.
 MODEL_SUFFIXES = (".blend", ".glb", ".gltf", ".obj", ".fbx", ".usd", ".usda", ".usdc", ".usdz")
+
+
+def suffix_listing(suffixes):
+    """``(".a", ".b", ".c")`` as a message lists them: ``".a, .b or .c"``."""
+    return suffixes[0] if len(suffixes) == 1 else ", ".join(suffixes[:-1]) + " or " + suffixes[-1]
 
 # The map roles of ``bridge.material_roles.ROLES`` (kept equal by a test; core does not import bridge), and
 # "normal" for the three normal-map roles at once.

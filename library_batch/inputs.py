@@ -7,13 +7,13 @@ import json
 import os
 import pathlib
 
-from ..core.settings import MODEL_SUFFIXES
+from ..core.settings import MODEL_SUFFIXES, suffix_listing
 from .external_files import external_files, forget_folder_listings
 
 __all__ = ["Asset", "find_models", "external_files", "content_key", "plan_assets"]
 
 _GLOB_CHARS = frozenset("*?[")
-_KINDS = ", ".join(MODEL_SUFFIXES[:-1]) + " or " + MODEL_SUFFIXES[-1]
+_KINDS = suffix_listing(MODEL_SUFFIXES)
 _CHUNK = 1 << 20
 
 

@@ -104,6 +104,20 @@ def test_bad_input_is_one_line_and_exit_2(args, fragment, capsys):
     assert fragment in err and err.count("\n") == 1 and err.startswith("perceptual_uv: error: ")
 
 
+def test_the_formats_the_messages_name_are_the_ones_read_and_written(capsys):
+    from perceptual_uv.core.settings import suffix_listing
+
+    assert suffix_listing((".a",)) == ".a"
+    assert suffix_listing((".a", ".b", ".c")) == ".a, .b or .c"
+    assert main(["optimize", "model.stl", "--out", "x.blend"]) == 2
+    assert ("expected .blend, .glb, .gltf, .obj, .fbx, .usd, .usda, .usdc or .usdz)"
+            in capsys.readouterr().err)
+    assert main(["optimize", str(SPOT), "--out", "x.usdz"]) == 2
+    assert "expected .blend, .glb or .fbx)" in capsys.readouterr().err
+    assert main(["batch", str(SPOT), "--out", "lib", "--format", "usdz"]) == 2
+    assert "(choose from 'blend', 'glb', 'fbx')" in capsys.readouterr().err
+
+
 def test_an_interrupt_that_numba_wraps_in_a_system_error_still_cancels(monkeypatch, capsys):
     """Ctrl-C or SIGTERM while numba loads a cached kernel reaches the CLI as a SystemError caused by the
     KeyboardInterrupt (seen in CI); any other SystemError is not ours to hide."""
