@@ -302,7 +302,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                    step, resolution=sides_by_memory[0] if by_memory else None)
         # What the UV map stores (float32), so the report's figures are those of the saved map.
         uv_out = packing.uv.astype(np.float32).astype(np.float64)
-        resolution = packing.resolution
+        resolution = packing.width  # a square: the pipeline packs with the default aspect
         reuse_out = texel_cost.texel_reuse(uv_out, (resolution, resolution))
         # The islands' UV area; stacked islands cover their texels once, so with stacks the texels they cover.
         coverage = texel_cost.uv_area(uv_out) / (reuse_out if stacked else 1.0)
@@ -505,7 +505,7 @@ def _pack(uv_in, uv_fit, face_chart, input_size, settings, step, *, resolution=N
     reference = texel_cost.texel_cost(uv_in, input_size)
     density = np.sqrt(settings.target_cost * reference / texel_cost.uv_area(uv_fit))
     packing = yield from packed(texels_per_unit=density)
-    if packing.resolution < MIN_RESOLUTION:
+    if min(packing.size) < MIN_RESOLUTION:
         packing = yield from packed(resolution=MIN_RESOLUTION)
     return packing
 

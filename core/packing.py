@@ -1,18 +1,23 @@
-"""Packing UV charts into a square image with translations and quarter turns, on the image's pixel grid.
+"""Packing UV charts into one image with translations and quarter turns, on the image's pixel grid.
 
 Each chart is drawn at a fixed texel density into a bitmap of the pixels it touches (conservative raster),
-grown by half the margin on every side; the bitmaps, largest first, are placed bottom-left in a square strip,
-each in the quarter turn whose top edge ends lowest, and the smallest square that holds them all is searched.
-Charts move by whole pixels, so the gap between two charts is at least the margin in pixels of the final image,
-and nothing rotates by other angles or shears (paper Sec. 5.1, "Texture packing": the orientation the mesh-wise
-stage chose relative to the texel grid is kept).
+grown by half the margin on every side; the bitmaps, largest first, are placed bottom-left in a strip as wide as
+the image, each in the quarter turn whose top edge ends lowest, and the smallest image that holds them all is
+searched. Charts move by whole pixels, so the gap between two charts is at least the margin in pixels of the
+final image, and nothing rotates by other angles or shears (paper Sec. 5.1, "Texture packing": the orientation
+the mesh-wise stage chose relative to the texel grid is kept).
 
 The texel density is what the cost fixes (Eq. 20-21): at ``d`` pixels per unit of the fitted UV map, a chart
-of fitted area ``a`` covers ``d^2 a`` texels whatever the image size, so the image side is simply the side of
-that square. With an explicit resolution the density is searched instead.
+of fitted area ``a`` covers ``d^2 a`` texels whatever the image size, so the image's pixel count is simply what
+the packing needs. With an explicit resolution (a pixel count) the density is searched instead.
+
+The image is a square unless the caller lets it take other width-to-height ratios (``aspects``): a few large
+charts often fill a rectangle better than a square (a bottle's label and cap, a fruit's skin and cut face), and
+at the same pixel count the image that holds them densest carries the most texels. Texels stay square: a chart
+is scaled alike along both axes whatever the image's shape.
 
 :func:`iter_pack_charts` is the same packing as a generator that hands control back after each chart's bitmaps
-and each try (a square side or a density), so that the Blender operator driving the pipeline stays responsive
+and each try (an image size or a density), so that the Blender operator driving the pipeline stays responsive
 while many charts or a density search take seconds.
 """
 import dataclasses
@@ -23,9 +28,11 @@ from ._jit import njit
 from .charts import signed_uv_areas
 from .progress import run_generator
 
-__all__ = ["Packing", "pack_charts", "iter_pack_charts"]
+__all__ = ["IMAGE_ASPECTS", "Packing", "image_sizes", "pack_charts", "iter_pack_charts"]
 
 _MAX_SIDE = 16384
+#: Width-to-height ratios a packed image may take when the caller allows other shapes than a square.
+IMAGE_ASPECTS = (1.0, 4 / 3, 3 / 4, 3 / 2, 2 / 3, 2.0, 1 / 2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,27 +42,56 @@ class Packing:
     Attributes
     ----------
     uv : (m, 3, 2) float64 ndarray
-        Per-corner UV coordinates in the unit square of a ``resolution`` px image.
-    resolution : int
-        Side of the square image, in pixels.
+        Per-corner UV coordinates in the unit square of a ``width x height`` px image.
+    width, height : int
+        The image's size in pixels.
     turns : (k,) int ndarray
         Quarter turns (counter-clockwise) of each chart.
     texels_per_unit : float
-        Pixels of the image per unit of the input UV map: every chart is scaled by ``texels_per_unit /
-        resolution``.
+        Pixels of the image per unit of the input UV map, along both axes: a chart's ``u`` is scaled by
+        ``texels_per_unit / width``, its ``v`` by ``texels_per_unit / height``.
     coverage : float
         Fraction of the image the charts' triangles cover.
     """
 
     uv: np.ndarray
-    resolution: int
+    width: int
+    height: int
     turns: np.ndarray
     texels_per_unit: float
     coverage: float
 
+    @property
+    def size(self):
+        """``(width, height)`` in pixels."""
+        return (self.width, self.height)
 
-def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None):
-    """Pack the charts of ``uv`` with translations and quarter turns into one square image.
+
+def image_sizes(side, aspects):
+    """The image sizes of ``aspects`` (width over height) that hold at most ``side * side`` pixels.
+
+    Parameters
+    ----------
+    side : int
+        Side of the square whose pixel count every size keeps to.
+    aspects : sequence of float
+        Width-to-height ratios.
+
+    Returns
+    -------
+    list of (int, int)
+        ``(width, height)`` per aspect: ``width = round(side * sqrt(aspect))``, ``height`` the most rows that
+        keep ``width * height <= side * side`` (an aspect of 1 gives ``(side, side)``).
+    """
+    sizes = []
+    for aspect in aspects:
+        width = max(1, int(round(side * np.sqrt(aspect))))
+        sizes.append((width, max(1, side * side // width)))
+    return sizes
+
+
+def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None, aspects=(1.0,)):
+    """Pack the charts of ``uv`` with translations and quarter turns into one image.
 
     :func:`iter_pack_charts` run to its end; see it for the parameters.
 
@@ -64,11 +100,11 @@ def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None
     Packing
     """
     return run_generator(iter_pack_charts(uv, face_chart, margin=margin, texels_per_unit=texels_per_unit,
-                                          resolution=resolution))
+                                          resolution=resolution, aspects=aspects))
 
 
-def iter_pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None):
-    """Generator: pack the charts of ``uv`` with translations and quarter turns into one square image.
+def iter_pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None, aspects=(1.0,)):
+    """Generator: pack the charts of ``uv`` with translations and quarter turns into one image.
 
     Yields None after each chart's bitmap in each quarter turn and after each chart placed in each try; returns
     the :class:`Packing` (through ``StopIteration.value``, as ``yield from`` gives it).
@@ -82,10 +118,15 @@ def iter_pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution
     margin : int
         Smallest gap between charts, in pixels of the packed image.
     texels_per_unit : float, optional
-        Pixels per unit of ``uv``: each chart keeps this density and the image is as large as the packing
-        needs. Exactly one of ``texels_per_unit`` and ``resolution`` is given.
+        Pixels per unit of ``uv``: each chart keeps this density and the image is as small (in pixels) as the
+        packing found needs. Exactly one of ``texels_per_unit`` and ``resolution`` is given.
     resolution : int, optional
-        Side of the image: the density is the largest found (within 1 %) whose packing fits.
+        Side of the square whose pixel count the image keeps (:func:`image_sizes`): the density is the largest
+        found (within 1 %) whose packing fits.
+    aspects : sequence of float, optional
+        Width-to-height ratios the image may take (:data:`IMAGE_ASPECTS`); the default is a square. Every aspect
+        is packed and the one that holds the charts at the highest density (``resolution``) or in the fewest
+        pixels (``texels_per_unit``) wins, the earlier of equals.
 
     Returns
     -------
@@ -108,6 +149,9 @@ def iter_pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution
         raise ValueError("give exactly one of texels_per_unit and resolution")
     if margin < 0:
         raise ValueError(f"margin must be >= 0 pixels, got {margin}")
+    aspects = tuple(float(aspect) for aspect in aspects)
+    if not aspects or not all(1 / 16 <= aspect <= 16 for aspect in aspects):
+        raise ValueError(f"aspects must be width-to-height ratios in [1/16, 16], got {aspects}")
     if not np.isfinite(uv).all():
         raise ValueError("uv has non-finite coordinates")
     area = float(np.abs(signed_uv_areas(uv)).sum())
@@ -116,29 +160,101 @@ def iter_pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution
     charts = np.unique(face_chart)
     if charts[0] < 0 or charts[-1] != len(charts) - 1:
         raise ValueError("face_chart labels must be 0 .. k-1")
+    layout = _Layout(uv, face_chart, len(charts), int(margin))
     if texels_per_unit is not None:
         if not texels_per_unit > 0:
             raise ValueError(f"texels_per_unit must be positive, got {texels_per_unit}")
-        return (yield from _pack_at(uv, face_chart, len(charts), float(texels_per_unit), int(margin),
-                                    max_side=None))
+        return (yield from _pack_at(layout, float(texels_per_unit), aspects))
     if not 1 <= resolution <= _MAX_SIDE:
         raise ValueError(f"resolution must be in [1, {_MAX_SIDE}], got {resolution}")
-    return (yield from _pack_into(uv, face_chart, len(charts), int(resolution), int(margin), area))
+    best = None
+    # Every size starts its density search from the same guess, so the sizes try the same densities and share
+    # their bitmaps (the dearer half of a try).
+    start = int(resolution) * np.sqrt(0.6 / area)
+    for width, height in image_sizes(int(resolution), aspects):
+        packing = yield from _pack_into(layout, width, height, start)
+        if packing is not None and (best is None or packing.texels_per_unit > best.texels_per_unit):
+            best = packing
+    if best is None:
+        raise ValueError(f"the charts do not fit a {resolution} px image with a {margin} px margin: lower the "
+                         "margin or give the image more pixels (a higher cost or resolution)")
+    return best
 
 
-def _pack_into(uv, face_chart, count, resolution, margin, area):
-    """The densest packing found that fits a ``resolution`` square, scaled up to fill it.
+class _Layout:
+    """The charts to pack and their bitmaps at each density tried (kept: the aspects try the same densities)."""
+
+    def __init__(self, uv, face_chart, count, margin):
+        self.uv, self.count, self.margin = uv, count, margin
+        self.grow = (margin + 1) // 2
+        self.order = np.argsort(face_chart, kind="stable")
+        self.starts = np.searchsorted(face_chart[self.order], np.arange(count + 1))
+        # Where the charts lie relative to each other does not count (they are moved), only each chart's own
+        # extent and their total area.
+        self.extent = (np.maximum.reduceat(uv[self.order].max(axis=1), self.starts[:-1])
+                       - np.minimum.reduceat(uv[self.order].min(axis=1), self.starts[:-1])).max()
+        self.root_area = np.sqrt(np.abs(signed_uv_areas(uv)).sum())
+        self._bitmaps = {}
+
+    def too_dense(self, density):
+        return self.extent * density > _MAX_SIDE or self.root_area * density > _MAX_SIDE
+
+    def bitmaps(self, density):
+        """Generator: per chart and quarter turn (bitmap's shape, its rows' spans, origin), the placing order
+        (largest first), the pixels they cover and the largest of the charts' narrower sides; yields after each
+        chart's bitmap in each turn the first time a density is asked for."""
+        if density not in self._bitmaps:
+            bitmaps = []
+            sizes = np.zeros(self.count, dtype=np.int64)
+            for chart in range(self.count):
+                pixels = self.uv[self.order[self.starts[chart]:self.starts[chart + 1]]] * density
+                turns = []
+                for turn in range(4):
+                    grid, origin = _chart_bitmap(_turn(pixels, turn), self.grow)
+                    turns.append((grid.shape, _row_spans(grid), origin))
+                    if turn == 0:
+                        sizes[chart] = grid.sum()
+                    yield
+                bitmaps.append(turns)
+            self._bitmaps[density] = (bitmaps, np.argsort(-sizes, kind="stable"), int(sizes.sum()),
+                                      max(min(turns[0][0]) for turns in bitmaps))
+        return self._bitmaps[density]
+
+    def place(self, density, width, height):
+        """Generator: the charts at ``density`` placed in a ``width x height`` image, or None if they do not fit;
+        yields after each bitmap made and each chart placed."""
+        bitmaps, chart_order, _, narrowest = yield from self.bitmaps(density)
+        if min(width, height) < narrowest or max(width, height) > _MAX_SIDE:
+            return None
+        placed = yield from _place_all(bitmaps, chart_order, width, limit=height)
+        if placed is None:
+            return None
+        positions, chosen, _ = placed
+        out = np.empty_like(self.uv)
+        for chart in range(self.count):
+            rows = self.order[self.starts[chart]:self.starts[chart + 1]]
+            turn = chosen[chart]
+            origin = bitmaps[chart][turn][2]
+            out[rows] = (_turn(self.uv[rows] * density, turn) - origin + positions[chart]) / (width, height)
+        coverage = float(np.abs(signed_uv_areas(out)).sum())
+        return Packing(uv=out, width=int(width), height=int(height), turns=np.asarray(chosen, dtype=np.int64),
+                       texels_per_unit=float(density), coverage=coverage)
+
+
+def _pack_into(layout, width, height, density):
+    """Generator: the densest packing found that fits a ``width x height`` image, scaled up to fill it, or None.
 
     Each try fills a strip as wide as the image bottom-left and fits if it is no higher. The density moves in
-    5 % steps from a 60 % coverage guess until one try fits and the next does not, then 1 % steps go down from
+    5 % steps from ``density`` (a guess) until one try fits and the next does not, then 1 % steps go down from
     the one that did not (whether a packing fits is not monotonic in the density) and the first that fits wins.
     Its layout is then scaled up until the charts reach the far border but for half a margin (every gap grows
     with it).
     """
     def attempt(density):  # a generator: each try hands control back
-        return (yield from _pack_at(uv, face_chart, count, density, margin, max_side=resolution))
+        if layout.too_dense(density):
+            return None
+        return (yield from layout.place(density, width, height))
 
-    density = resolution * np.sqrt(0.6 / area)
     best = yield from attempt(density)
     too_dense = None
     for _ in range(100):
@@ -154,8 +270,7 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
         else:
             density, best = density * 1.05, larger
     if best is None:
-        raise ValueError(f"the charts do not fit a {resolution} px image with a {margin} px margin: lower the "
-                         "margin or give the image more pixels (a higher cost or resolution)")
+        return None
     for step in range(1, 5):
         candidate = too_dense / 1.01 ** step
         if candidate <= density:
@@ -165,99 +280,70 @@ def _pack_into(uv, face_chart, count, resolution, margin, area):
             best = finer
             break
     # Scale the layout until the charts reach the far border but for half a margin: every gap grows with it.
-    reach = best.uv.max() * best.resolution
-    scale = (resolution - (margin + 1) // 2) / reach if reach > 0 else 1.0
-    scale = max(scale, resolution / best.resolution)
-    uv_scaled = best.uv * best.resolution * scale / resolution
-    return Packing(uv=uv_scaled, resolution=resolution, turns=best.turns,
-                   texels_per_unit=best.texels_per_unit * scale, coverage=best.coverage * (best.resolution * scale
-                                                                                          / resolution) ** 2)
+    reach = best.uv.reshape(-1, 2).max(axis=0) * (width, height)
+    room = np.array([width, height], dtype=np.float64) - (layout.margin + 1) // 2
+    scale = max(float(np.min(np.where(reach > 0, room / np.maximum(reach, 1e-300), np.inf))), 1.0)
+    if not np.isfinite(scale):
+        scale = 1.0
+    size = np.array([width, height], dtype=np.float64)
+    return Packing(uv=best.uv * size * scale / size, width=width, height=height, turns=best.turns,
+                   texels_per_unit=best.texels_per_unit * scale, coverage=best.coverage * (width * scale / width) ** 2)
 
 
-def _pack_at(uv, face_chart, count, density, margin, *, max_side):
-    """Generator: pack at ``density`` into the smallest square found, or into ``max_side`` (None if the charts do
-    not fit); yields after each chart's bitmaps and each chart placed."""
-    grow = (margin + 1) // 2
-    order = np.argsort(face_chart, kind="stable")
-    starts = np.searchsorted(face_chart[order], np.arange(count + 1))
-    # Where the charts lie relative to each other does not count (they are moved), only each chart's own extent
-    # and their total area.
-    low = np.minimum.reduceat(uv[order].min(axis=1), starts[:-1])  # (count, 2) per chart
-    high = np.maximum.reduceat(uv[order].max(axis=1), starts[:-1])
-    extent = (high - low).max() * density
-    if extent > _MAX_SIDE or np.sqrt(np.abs(signed_uv_areas(uv)).sum()) * density > _MAX_SIDE:
-        if max_side is not None:
-            return None
+def _pack_at(layout, density, aspects):
+    """Generator: pack at ``density`` into the image of ``aspects`` with the fewest pixels found; yields after
+    each chart's bitmaps and each chart placed."""
+    if layout.too_dense(density):
         raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
                          "unit; lower the target cost or set an explicit resolution")
-    bitmaps = []  # per chart and quarter turn: (bitmap's shape, its rows' spans, origin)
-    sizes = np.zeros(count, dtype=np.int64)
-    for chart in range(count):
-        pixels = uv[order[starts[chart]:starts[chart + 1]]] * density
-        turns = []
-        for turn in range(4):
-            grid, origin = _chart_bitmap(_turn(pixels, turn), grow)
-            turns.append((grid.shape, _row_spans(grid), origin))
-            if turn == 0:
-                sizes[chart] = grid.sum()
-            yield
-        bitmaps.append(turns)
-    total = int(sizes.sum())
-    chart_order = np.argsort(-sizes, kind="stable")
-    narrowest = max(min(turns[0][0]) for turns in bitmaps)
+    _, _, total, narrowest = yield from layout.bitmaps(density)
+    best = None
+    for aspect in aspects:
+        def size(side):
+            return (max(1, int(round(side * np.sqrt(aspect)))), max(1, int(round(side / np.sqrt(aspect)))))
 
-    def square(side):  # generator: a strip ``side`` wide filled bottom-left; the packing if it is no higher
-        if side < narrowest or side > _MAX_SIDE:
-            return None
-        placed = yield from _place_all(bitmaps, chart_order, side, limit=side)
-        return None if placed is None else (side,) + placed[:2]
+        def attempt(side):  # generator: the packing in the image of this side, or None
+            return (yield from layout.place(density, *size(side)))
 
-    if max_side is not None:
-        best = yield from square(max_side)
-        if best is None:
-            return None
-    else:
-        best = yield from _smallest_square(square, max(narrowest, int(np.ceil(np.sqrt(total)))))
-        if best is None:
-            raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
-                             "unit; lower the target cost or set an explicit resolution")
-    side, positions, chosen = best
-    out = np.empty_like(uv)
-    for chart in range(count):
-        rows = order[starts[chart]:starts[chart + 1]]
-        turn = chosen[chart]
-        origin = bitmaps[chart][turn][2]
-        out[rows] = (_turn(uv[rows] * density, turn) - origin + positions[chart]) / side
-    coverage = float(np.abs(signed_uv_areas(out)).sum())
-    return Packing(uv=out, resolution=int(side), turns=np.asarray(chosen, dtype=np.int64),
-                   texels_per_unit=float(density), coverage=coverage)
+        start = max(int(np.ceil(narrowest / min(1.0, np.sqrt(aspect), 1 / np.sqrt(aspect)))),
+                    int(np.ceil(np.sqrt(total))))
+        packing = yield from _smallest_side(attempt, start)
+        if packing is not None and (best is None or packing.width * packing.height < best.width * best.height):
+            best = packing
+    if best is None:
+        raise ValueError(f"the charts need an image larger than {_MAX_SIDE} px at {density:.4g} texels per UV "
+                         "unit; lower the target cost or set an explicit resolution")
+    return best
 
 
-def _smallest_square(square, start):
-    """Generator: the smallest side found for which the generator ``square(side)`` fits: 5 % steps from
-    ``start`` until one side fits and the one below does not, then 1 % steps up from that one (fitting is not
-    monotonic in the side); yields what ``square`` yields."""
+def _smallest_side(attempt, start):
+    """Generator: the packing of the smallest side found for which the generator ``attempt(side)`` fits: 5 %
+    steps from ``start`` until one side fits and the one below does not, then 1 % steps up from that one
+    (fitting is not monotonic in the side); yields what ``attempt`` yields."""
     side, too_small = start, None
-    best = yield from square(start)
+    best = yield from attempt(start)
     for _ in range(200):
         if best is None:  # grow until a side fits
             too_small, side = side, max(side + 1, int(np.ceil(side * 1.05)))
             if side > _MAX_SIDE:
                 return None
-            best = yield from square(side)
+            best = yield from attempt(side)
             continue
         if too_small is not None:
             break
-        smaller = yield from square(min(side - 1, int(side / 1.05)))  # shrink until a side does not fit
+        smaller_side = min(side - 1, int(side / 1.05))
+        smaller = None
+        if smaller_side >= 1:  # shrink until a side does not fit
+            smaller = yield from attempt(smaller_side)
         if smaller is None:
-            too_small = min(side - 1, int(side / 1.05))
+            too_small = smaller_side
         else:
-            side, best = smaller[0], smaller
+            side, best = smaller_side, smaller
     for step in range(1, 5):
         candidate = int(np.ceil(too_small * 1.01 ** step))
         if candidate >= side:
             break
-        finer = yield from square(candidate)
+        finer = yield from attempt(candidate)
         if finer is not None:
             return finer
     return best

@@ -31,7 +31,7 @@ def chart_motion(before, after):
 
 def pixel_boxes(packing, face_chart):
     """Each chart's [min, max] corner in pixels of the packed image."""
-    pixels = packing.uv * packing.resolution
+    pixels = packing.uv * packing.size
     return [(pixels[face_chart == c].reshape(-1, 2).min(0), pixels[face_chart == c].reshape(-1, 2).max(0))
             for c in range(face_chart.max() + 1)]
 
@@ -40,7 +40,7 @@ def test_four_unit_squares_at_8_texels_fill_a_16_px_image():
     # Each chart covers exactly 8 x 8 pixels: 256 pixels, the narrowest strip tried is sqrt(256) = 16 wide.
     uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])
     packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=8)
-    assert packing.resolution == 16
+    assert packing.size == (16, 16)
     assert packing.coverage == pytest.approx(1.0)
     assert packing.texels_per_unit == 8
     corners = sorted(tuple(np.round(low).astype(int)) for low, _ in pixel_boxes(packing, face_chart))
@@ -51,7 +51,7 @@ def test_margin_keeps_charts_that_many_pixels_apart():
     # margin 2: every chart grows by 1 px on each side, 10 x 10 pixels, four of them in a 20 px square.
     uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])
     packing = pack_charts(uv, face_chart, margin=2, texels_per_unit=8)
-    assert packing.resolution == 20
+    assert packing.size == (20, 20)
     boxes = pixel_boxes(packing, face_chart)
     for i, (low_i, high_i) in enumerate(boxes):
         assert (low_i >= 1 - 1e-9).all() and (high_i <= 19 + 1e-9).all()  # half a margin to the border
@@ -69,13 +69,13 @@ def test_every_chart_moves_rigidly_with_one_common_scale():
         rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
         uv[face_chart == c] = uv[face_chart == c] @ rotation.T
     packing = pack_charts(uv, face_chart, margin=3, texels_per_unit=20)
-    expected_scale = 20 / packing.resolution
+    expected_scale = 20 / packing.width
     for c in range(12):
         scale, turn = chart_motion(uv[face_chart == c], packing.uv[face_chart == c])
         assert scale == pytest.approx(expected_scale, rel=1e-9)
         np.testing.assert_allclose(turn, QUARTER_TURNS[packing.turns[c]], atol=1e-9)
     assert packing.uv.min() >= 0 and packing.uv.max() <= 1
-    area = sum(w * h for _, _, w, h in rectangles) * 20 ** 2 / packing.resolution ** 2
+    area = sum(w * h for _, _, w, h in rectangles) * 20 ** 2 / (packing.width * packing.height)
     assert packing.coverage == pytest.approx(area)
 
 
@@ -85,7 +85,7 @@ def test_a_long_chart_is_laid_along_the_strip():
     # strip either, so every strip ends 32 px tall or wide: the packing is 32 px and holds all five.
     uv, face_chart = charts_of([(0, 0, 1, 4), (2, 0, 1, 1), (4, 0, 1, 1), (6, 0, 1, 1), (8, 0, 1, 1)])
     packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=8)
-    assert packing.resolution == 32
+    assert packing.size == (32, 32)
     assert packing.coverage == pytest.approx(8 * 8 * 8 / 32 ** 2)
 
 
@@ -94,7 +94,7 @@ def test_explicit_resolution_fills_the_image_within_two_percent_of_the_best_dens
     # touches 17 pixels per side and two no longer fit side by side.
     uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])
     packing = pack_charts(uv, face_chart, margin=0, resolution=32)
-    assert packing.resolution == 32
+    assert packing.size == (32, 32)
     assert 16 / 1.02 < packing.texels_per_unit <= 16
     assert packing.uv.min() >= 0 and packing.uv.max() == pytest.approx(1.0)  # scaled up to the border
     assert packing.coverage == pytest.approx(4 * (packing.texels_per_unit / 32) ** 2)
@@ -115,14 +115,14 @@ def test_a_margin_too_wide_for_the_image_is_refused_saying_what_to_change():
     uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1)])
     with pytest.raises(ValueError, match="do not fit a 8 px image with a 4 px margin: lower the margin"):
         pack_charts(uv, face_chart, margin=4, resolution=8)
-    assert pack_charts(uv, face_chart, margin=1, resolution=8).resolution == 8
+    assert pack_charts(uv, face_chart, margin=1, resolution=8).size == (8, 8)
 
 
 def test_charts_far_apart_pack_as_if_they_were_close():
     # Where the charts lie before packing does not count: 1e6 UV units apart, the same 16 px image as side by side.
     near, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1), (0, 5, 1, 1), (7, 7, 1, 1)])
     far, _ = charts_of([(0, 0, 1, 1), (1e6, 0, 1, 1), (0, -1e6, 1, 1), (1e6, 1e6, 1, 1)])
-    assert pack_charts(far, face_chart, margin=0, texels_per_unit=8).resolution == 16
+    assert pack_charts(far, face_chart, margin=0, texels_per_unit=8).size == (16, 16)
     np.testing.assert_allclose(pack_charts(far, face_chart, margin=0, texels_per_unit=8).uv,
                                pack_charts(near, face_chart, margin=0, texels_per_unit=8).uv, atol=1e-9)
 
@@ -133,7 +133,7 @@ def test_zero_area_triangles_go_with_their_chart():
     uv, face_chart = np.concatenate([uv, sliver]), np.append(face_chart, 0)
     packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=8)
     low, high = pixel_boxes(packing, face_chart)[0]
-    point = packing.uv[-1, 0] * packing.resolution
+    point = packing.uv[-1, 0] * packing.size
     assert (point >= low).all() and (point <= high).all()
     np.testing.assert_allclose(point, low + 4, atol=1e-9)  # the chart's centre
 
@@ -176,7 +176,7 @@ def test_the_generator_hands_control_back_after_each_chart_and_each_try():
         assert yields >= (6 if "texels_per_unit" in size else 12)
         expected = pack_charts(uv, face_chart, margin=2, **size)
         np.testing.assert_array_equal(packing.uv, expected.uv)
-        assert packing.resolution == expected.resolution
+        assert packing.size == expected.size
 
 
 def test_a_placed_bitmap_leaves_signed_runs_and_the_search_jumps_over_it():
@@ -247,3 +247,48 @@ def test_placement_matches_a_pixel_by_pixel_first_fit():
         for chart in order:
             assert tuple(positions[chart].astype(int)) == expected[0][chart], trial
             assert chosen[chart] == expected[1][chart], trial
+
+
+def test_image_sizes_keep_to_the_square_pixel_count():
+    from perceptual_uv.core.packing import image_sizes
+
+    # 16 * sqrt(2) = 22.6 -> 23 columns, 256 // 23 = 11 rows; 16 / sqrt(2) = 11.3 -> 11 columns, 23 rows
+    assert image_sizes(16, (1.0, 2.0, 0.5)) == [(16, 16), (23, 11), (11, 23)]
+    assert image_sizes(3, (4.0,)) == [(6, 1)]  # 9 // 6: at least one row
+
+
+def test_two_squares_take_a_two_to_one_image_of_half_the_pixels():
+    # Two 8 x 8 px charts: the square search ends at 16 x 16 (they do not sit side by side in fewer than 16
+    # columns), 256 px. Aspect 2 at side 11 is round(11 sqrt 2) x round(11 / sqrt 2) = 16 x 8: both side by side,
+    # every pixel covered; side 10 gives 14 x 7, lower than a chart.
+    uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1)])
+    assert pack_charts(uv, face_chart, margin=0, texels_per_unit=8).size == (16, 16)
+    packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=8, aspects=(1.0, 2.0, 0.5))
+    assert packing.size == (16, 8)
+    assert packing.coverage == pytest.approx(1.0)
+    assert packing.texels_per_unit == 8
+
+
+def test_at_a_pixel_count_the_densest_aspect_wins_and_texels_stay_square():
+    # 256 px: the 16 x 16 square holds two unit squares at 8 texels per unit (side by side), the 23 x 11 image at
+    # 11 (its height; 2 x 11 = 22 <= 23 columns): 242 of its 253 pixels covered.
+    uv, face_chart = charts_of([(0, 0, 1, 1), (3, 0, 1, 1)])
+    square = pack_charts(uv, face_chart, margin=0, resolution=16)
+    assert square.size == (16, 16) and square.texels_per_unit == pytest.approx(8, rel=0.02)
+    packing = pack_charts(uv, face_chart, margin=0, resolution=16, aspects=(1.0, 2.0))
+    assert packing.size == (23, 11)
+    assert packing.texels_per_unit == pytest.approx(11)
+    assert packing.coverage == pytest.approx(242 / 253)
+    pixels = packing.uv * packing.size
+    assert pixels.min() >= -1e-9 and (pixels.reshape(-1, 2).max(0) <= (23 + 1e-9, 11 + 1e-9)).all()
+    for c in range(2):  # each chart: a uniform scale by 11 and a quarter turn in pixels
+        scale, turn = chart_motion(uv[face_chart == c], pixels[face_chart == c])
+        assert scale == pytest.approx(11)
+        assert any(np.allclose(turn, q) for q in QUARTER_TURNS)
+
+
+@pytest.mark.parametrize("aspects", [(), (0.0,), (32.0,)])
+def test_aspects_outside_sixteen_to_one_are_refused(aspects):
+    uv, face_chart = charts_of([(0, 0, 1, 1)])
+    with pytest.raises(ValueError, match="aspects"):
+        pack_charts(uv, face_chart, margin=0, texels_per_unit=8, aspects=aspects)
