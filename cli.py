@@ -130,6 +130,9 @@ def _add_optimize_options(parser, *, workers_flag="--workers"):
     parser.add_argument("--unstack", dest="keep_stacks", action="store_false",
                         help="give every UV island texels of its own, also islands that share texels in the input "
                              "(by default they stay stacked and the new images hold those texels once)")
+    parser.add_argument("--square-images", action="store_true",
+                        help="make every new image a square (by default the packing may choose a width-to-height "
+                             "ratio from 2:1 to 1:2 that holds the islands denser in the same memory)")
     parser.add_argument("--cost-for", dest="cost_for", action="append", type=_role_cost, default=[],
                         metavar="ROLE=COST",
                         help="relative cost of one kind of map instead of --cost's, e.g. normal=0.2 (repeatable; "
@@ -224,7 +227,7 @@ def _validate(args):
             args.settings = OptimizeSettings(
                 epsilon=args.epsilon, target_cost=args.cost, resolution=args.resolution, iterations=args.iterations,
                 screen_pixels=args.screen_pixels, max_screen_pixels=args.max_screen_pixels, margin=args.margin,
-                keep_stacks=args.keep_stacks, workers=args.workers, seed=args.seed,
+                keep_stacks=args.keep_stacks, square_images=args.square_images, workers=args.workers, seed=args.seed,
                 reuse_triangle_results=not args.fresh,
                 bake_in_background=args.bake_in_background, role_costs=tuple(args.cost_for),
                 cost_measure=args.cost_measure,

@@ -67,6 +67,11 @@ def settings_annotations():
             description=("Islands that share texels in the input (mirrored halves, repeated parts) stay stacked "
                          "and pack as one, so the new images hold those texels once"),
             default=DEFAULTS.keep_stacks),
+        "square_images": BoolProperty(
+            name="Square Images",
+            description=("Make every new image a square; off, the packing may choose a width-to-height ratio from "
+                         "2:1 to 1:2 that holds the islands denser in the same memory"),
+            default=DEFAULTS.square_images),
         "workers": IntProperty(
             name="Workers", description="Worker processes for the triangle-wise stage (0: one per core)",
             default=DEFAULTS.workers, min=0, max=256),

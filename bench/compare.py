@@ -430,13 +430,19 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
 
         def evaluate(name, method_costs, method):
             return evaluate_shaded(objects, name, reference_uv=source, costs=method_costs, screen_pixels=screen,
-                                   reference=reference, sizing=SIZING.get(method, "texels"))
+                                   reference=reference, sizing=SIZING.get(method, "texels"), aspect=aspect(method))
     else:
         reference = render_views(objects, uv_name=source, screen_pixels=screen)
 
         def evaluate(name, method_costs, method):
             return evaluate_uv_map(objects, name, reference_uv=source, costs=method_costs, screen_pixels=screen,
-                                   reference_views=reference)
+                                   reference_views=reference, aspect=aspect(method))
+
+    def aspect(method):
+        """The image shape the method's map was packed for: its report's, or a cached result's (the input's
+        own map: a square)."""
+        return maps.reports.get(method, results.get(method, {})).get("aspect", 1.0)
+
     maps = UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers,
                    cache=None if triangles is None else (triangles, path.stem), seed=seed)
     names, results, cached_times, cached = {"input": source}, {}, {}, []

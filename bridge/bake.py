@@ -25,7 +25,7 @@ import numpy as np
 from ..core.progress import InThread, report_while_waiting, run_generator
 from ..core.raster import sample_bilinear
 from .bake_normal import bake_tangent_normal
-from .cycles_bake import bake_pass, extend_margin, footprints, touched_tiles
+from .cycles_bake import bake_pass, extend_margin, footprints, target_size, touched_tiles
 from .image_file import image_is_float
 from .map_reads import _map_sources, _reading_records, _slot_sources, bake_kind, has_transform, transform_problem
 from .mesh_io import read_image, read_mesh
@@ -185,8 +185,8 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
         bake their constant Base Color); several objects share the new image (an atlas).
     source_uv, target_uv : str
         Names of the UV maps the original texture is read through and the new one is written on.
-    resolution : int
-        Width and height of the new image.
+    resolution : int or (int, int)
+        Side of the new image, or its ``(width, height)``.
     margin : int
         Bake margin in pixels (extended from the island borders).
     image_name : str
@@ -222,7 +222,7 @@ def bake_base_color(objects, *, source_uv, target_uv, resolution, margin, image_
     # Float sources (16-bit PNG, EXR) hold linear values in ``pixels``; a byte image would read those numbers as
     # sRGB and darken them, so the result is a float image too (saved as a 16-bit PNG).
     use_float = any(image.is_float for image in sources)
-    image = bpy.data.images.new(image_name, resolution, resolution, alpha=use_alpha, float_buffer=use_float)
+    image = bpy.data.images.new(image_name, *target_size(resolution), alpha=use_alpha, float_buffer=use_float)
     image.pixels.foreach_set(_clip_to_unit(pixels).ravel())
     image.update()
     return image
@@ -315,13 +315,13 @@ def _clip_to_unit(pixels):
 
 
 def _new_image(name, pixels, *, alpha, use_float, like=None):
-    """A new image holding ``pixels`` (r, r, 4), already in [0, 1] (:func:`_clip_to_unit`); the colour space
+    """A new image holding ``pixels`` (height, width, 4), already in [0, 1] (:func:`_clip_to_unit`); the colour space
     follows ``like`` (a source image).
 
     The colour space is set before the pixels: setting it afterwards reloads a generated image's buffer.
     """
-    resolution = pixels.shape[0]
-    image = bpy.data.images.new(name, resolution, resolution, alpha=alpha, float_buffer=use_float)
+    height, width = pixels.shape[:2]
+    image = bpy.data.images.new(name, width, height, alpha=alpha, float_buffer=use_float)
     if like is not None and like.colorspace_settings.is_data:
         image.colorspace_settings.name = "Non-Color"
     elif like is not None and not use_float:
@@ -346,8 +346,8 @@ def bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, names
         occlusion, flat for normal maps, black otherwise).
     source_uv, target_uv : str
         The UV map the maps are read through, and the one the new images are written on.
-    resolutions : sequence of int
-        Side of each new (square) image.
+    resolutions : sequence of int or (int, int)
+        Side of each new (square) image, or its ``(width, height)``.
     margin : int or sequence of int
         Bake margin in pixels of each new image (extended from the island borders, across the image edges).
     names : sequence of str
@@ -387,7 +387,7 @@ def iter_bake_maps(objects, maps, *, source_uv, target_uv, resolutions, margin, 
     generator stops the background process. On an error or a close, the images made so far are removed again.
     """
     objects, maps = list(objects), list(maps)
-    resolutions, names = [int(resolution) for resolution in resolutions], list(names)
+    resolutions, names = [target_size(resolution) for resolution in resolutions], list(names)
     margins = [int(value) for value in margin] if np.ndim(margin) else [int(margin)] * len(maps)
     if not len(maps) == len(resolutions) == len(names) == len(margins):
         raise ValueError(f"{len(maps)} maps need as many resolutions, names and margins (got {len(resolutions)}, "
@@ -430,7 +430,7 @@ def bake_map_pixels(objects, record, *, source_uv, target_uv, resolution, margin
 
     Returns
     -------
-    pixels : (resolution, resolution, 4) ndarray of float32
+    pixels : (height, width, 4) ndarray of float32
         Not yet clipped to [0, 1].
     use_alpha : bool
         True when the alpha channel was baked (the source uses alpha); otherwise alpha is 1.

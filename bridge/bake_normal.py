@@ -100,8 +100,8 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
         A tangent-space normal map (``map_reads.bake_kind(record) == "normal"``).
     source_uv, target_uv : str
         The UV map the material reads the map through (its tangent frame) and the one the new image is drawn on.
-    resolution : int
-        Side of the new image.
+    resolution : int or (int, int)
+        Side of the new image, or its ``(width, height)``.
     margin : int
         Bake margin in pixels, extended from the written texels across the image edges.
     tiles : sequence of tuple of int
@@ -109,7 +109,7 @@ def bake_tangent_normal(objects, record, *, source_uv, target_uv, resolution, ma
 
     Returns
     -------
-    (resolution, resolution, 4) ndarray of float32
+    (height, width, 4) ndarray of float32
         Stored values ``0.5 n + 0.5`` of the unit normal n in the MikkTSpace frame (+X, +Y, +Z) of ``target_uv``;
         alpha 1. Texels Cycles covers hold its bake; texels next to a triangle that it leaves empty hold
         :func:`normal_values` at the triangle's nearest point where that can be computed (not through a texture

@@ -76,6 +76,7 @@ def _write_inputs(folder, objects, maps, *, source_uv, target_uv, resolutions, m
     """Write what the child needs into ``folder``: the .blend, the in-memory images' pixels, the manifest."""
     import bpy
 
+    from .cycles_bake import target_size
     from .map_reads import bake_kind
 
     bpy.data.libraries.write(os.path.join(folder, _BLEND), set(objects), fake_user=True, path_remap="ABSOLUTE")
@@ -94,7 +95,7 @@ def _write_inputs(folder, objects, maps, *, source_uv, target_uv, resolutions, m
         "target_uv": target_uv,
         "images": pixels,
         "maps": [{"image": record.image.name, "kind": bake_kind(record), "role": record.role,
-                  "resolution": int(resolution), "margin": int(margin)}
+                  "resolution": list(target_size(resolution)), "margin": int(margin)}
                  for record, resolution, margin in zip(maps, resolutions, margins)],
     }
     with open(os.path.join(folder, _MANIFEST), "w", encoding="utf-8") as file:

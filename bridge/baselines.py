@@ -68,8 +68,14 @@ def _check(objects, source_uv, name):
 
 
 def _pack(objects, name, face_stack=None):
-    pack_uv_layer(objects, name, margin=PACK_MARGIN_PIXELS, resolution=reference_resolution(objects),
-                  face_stack=face_stack)
+    """Pack UV map ``name`` as the product packs: into the shape of ``IMAGE_ASPECTS`` that holds its islands
+    densest at the input's pixel count; returns ``{"aspect": width / height}`` for the method's report (its
+    evaluation bakes images of that shape)."""
+    from ..core.packing import IMAGE_ASPECTS
+
+    packing = pack_uv_layer(objects, name, margin=PACK_MARGIN_PIXELS, resolution=reference_resolution(objects),
+                            face_stack=face_stack, aspects=IMAGE_ASPECTS)
+    return {"aspect": packing.width / packing.height}
 
 
 def _stacks(F, uv_in, keep_stacks=True):
@@ -100,8 +106,8 @@ def _finished(objects, name, uv_in, F, uv_new, texture, start):
     face_chart = topology.face_chart
     uv, restored, angles = finish_charts(uv_in, uv_new, face_chart, texel_scale=texture.shape[1::-1], stacks=stacks)
     _write(objects, name, uv)
-    _pack(objects, name, _face_stack(face_chart, stacks))
-    return {"total": time.perf_counter() - start, **_post_counts(restored, angles)}
+    shape = _pack(objects, name, _face_stack(face_chart, stacks))
+    return {"total": time.perf_counter() - start, **_post_counts(restored, angles), **shape}
 
 
 def _post_counts(restored, angles):
@@ -155,8 +161,8 @@ def repacked_input(objects, *, source_uv, name="InputRepacked"):
     _, F, uv = mesh_arrays(objects, source_uv)
     _write(objects, name, uv)
     topology, stacks = _stacks(F, uv)
-    _pack(objects, name, _face_stack(topology.face_chart, stacks))
-    return {"total": time.perf_counter() - start}
+    shape = _pack(objects, name, _face_stack(topology.face_chart, stacks))
+    return {"total": time.perf_counter() - start, **shape}
 
 
 def blender_unwrap(objects, *, source_uv, method, name=None):
@@ -376,5 +382,5 @@ def perceptual_uv(objects, *, source_uv, triangles, name, weights="perceptual", 
                                                                      workers=workers))
     bound = above_bound(uv, planes, triangles.epsilon, targets=target_losses, fit=fit_losses)
     _write(objects, name, uv_fit)
-    _pack(objects, name, _face_stack(face_chart, stacks))
-    return {"mesh": t_mesh, "total": time.perf_counter() - start, "above_bound": bound, **post}
+    shape = _pack(objects, name, _face_stack(face_chart, stacks))
+    return {"mesh": t_mesh, "total": time.perf_counter() - start, "above_bound": bound, **post, **shape}

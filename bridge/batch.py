@@ -244,7 +244,7 @@ def evaluate_file(args):
         No textured mesh object, or a UV map missing on an object.
     """
     from .evaluate import evaluate_uv_map
-    from .material_copy import original_materials
+    from .material_copy import copy_aspects, original_materials, slots_aspect
     from .mesh_io import import_model
     from .texture_parts import remove_parts
     from .texture_sets import groups_and_parts, part_labels
@@ -252,7 +252,10 @@ def evaluate_file(args):
     import_model(args.input)
     # A file an optimize run wrote shows the material copies: the evaluation compares against what the run read.
     # An object whose slots show several textures is measured per texture, on the part of its faces that show it.
-    with original_materials([obj for obj in bpy.context.scene.objects if obj.type == "MESH"]):
+    meshes = [obj for obj in bpy.context.scene.objects if obj.type == "MESH"]
+    # the image shape the run packed the UV map for: each cost's images keep it, so texels stay square
+    aspects = copy_aspects([obj for obj in meshes if args.uv in obj.data.uv_layers], args.uv)
+    with original_materials(meshes):
         groups, parts = groups_and_parts(list(bpy.context.scene.objects))
         try:
             objects = [obj for obj in _evaluated_group(groups, part_labels(parts), getattr(args, "texture", None))
@@ -265,10 +268,10 @@ def evaluate_file(args):
                 from .evaluate_shaded import evaluate_shaded
 
                 result = evaluate_shaded(objects, args.uv, reference_uv=ref_uv, costs=args.costs,
-                                         screen_pixels=screen)
+                                         screen_pixels=screen, aspect=slots_aspect(objects, aspects))
             else:
                 result = evaluate_uv_map(objects, args.uv, reference_uv=ref_uv, costs=args.costs,
-                                         screen_pixels=screen)
+                                         screen_pixels=screen, aspect=slots_aspect(objects, aspects))
         finally:
             remove_parts(parts)
     result["input"] = str(pathlib.Path(args.input).resolve())

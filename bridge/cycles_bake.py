@@ -21,7 +21,16 @@ import scipy.ndimage
 from ..core.footprint import footprint_texels
 from .mesh_io import read_mesh
 
-__all__ = ["temporary_ids", "touched_tiles", "bake_pass", "footprints", "extend_margin"]
+__all__ = ["target_size", "temporary_ids", "touched_tiles", "bake_pass", "footprints", "extend_margin"]
+
+
+def target_size(resolution):
+    """``(width, height)`` of a bake target given as its side (a square) or as ``(width, height)``."""
+    width, height = (resolution, resolution) if np.ndim(resolution) == 0 else resolution
+    width, height = int(width), int(height)
+    if width < 1 or height < 1:
+        raise ValueError(f"a bake target needs at least one pixel each way, got {resolution}")
+    return width, height
 
 
 @contextlib.contextmanager
@@ -44,9 +53,9 @@ def touched_tiles(objects, target_uv, resolution):
 
     Counting centres, not areas, keeps a unit-square map (or one a float step past 1) on tile (0, 0) alone: the
     centres of tile t lie in [t + 0.5 / r, t + 1 - 0.5 / r], so a box reaching less than half a texel into a
-    tile cannot cover any of them.
+    tile cannot cover any of them. ``resolution`` is the image's side or its ``(width, height)``.
     """
-    half = 0.5 / resolution
+    half = 0.5 / np.array(target_size(resolution), dtype=np.float64)
     tiles = set()
     for obj in objects:
         mesh = obj.data
@@ -70,7 +79,8 @@ def touched_tiles(objects, target_uv, resolution):
 
 def bake_pass(objects, material_for, material_key, *, source_uv, target_uv, resolution, tiles, bake_type,
                slots):
-    """One Cycles bake of ``objects`` (proxies in a temporary scene) into (r, r, 4) pixels and the covered texels.
+    """One Cycles bake of ``objects`` (proxies in a temporary scene) into (height, width, 4) pixels and the covered
+    texels; ``resolution`` is the image's side or its ``(width, height)``.
 
     ``material_for(created, object_index, slot_index, target)`` gives a proxy slot its material, with an
     Image Texture node holding ``target`` active; it is called once per value of ``material_key(object_index,
@@ -80,8 +90,8 @@ def bake_pass(objects, material_for, material_key, *, source_uv, target_uv, reso
     which image nodes without coordinates read, is ``source_uv``).
     """
     with temporary_ids() as created:
-        target = bpy.data.images.new("perceptual_uv_bake_target", resolution, resolution, alpha=False,
-                                     float_buffer=True)
+        width, height = target_size(resolution)
+        target = bpy.data.images.new("perceptual_uv_bake_target", width, height, alpha=False, float_buffer=True)
         created.append(target)
         target.colorspace_settings.name = "Non-Color"
         scene = bpy.data.scenes.new("perceptual_uv_bake")
@@ -116,9 +126,9 @@ def bake_pass(objects, material_for, material_key, *, source_uv, target_uv, reso
                                            selected_editable_objects=proxies):
                 bpy.ops.object.bake(type=bake_type, uv_layer=uv_layer, margin=0, use_clear=False,
                                     target="IMAGE_TEXTURES", **options)
-            pixels = np.empty(resolution * resolution * 4, dtype=np.float32)
+            pixels = np.empty(width * height * 4, dtype=np.float32)
             target.pixels.foreach_get(pixels)
-            return pixels.reshape(resolution, resolution, 4)
+            return pixels.reshape(height, width, 4)
 
         return _bake_tiles(bake, target, [proxy.data for proxy in proxies], source_uv=source_uv,
                            target_uv=target_uv, tiles=tiles, tangent_from_target=bake_type == "NORMAL")
@@ -134,7 +144,8 @@ _UNWRITTEN = -1.0
 def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, tiles, tangent_from_target=False):
     """Bake each tile of ``target_uv`` shifted into the unit square and composite the tiles (see :func:`bake_pass`).
 
-    Returns the (r, r, 4) pixels, black and opaque where no tile wrote, and the (r, r) texels written.
+    Returns the (height, width, 4) pixels, black and opaque where no tile wrote, and the (height, width) texels
+    written.
     Coverage comes from Cycles itself (texels still holding the sentinel after a bake were not written) rather
     than from rasterising the triangles again in numpy: it is exactly the set of texels Cycles considers inside,
     whatever its rule for centres on an edge, and it works for any polygon Cycles triangulates.
@@ -154,11 +165,11 @@ def _bake_tiles(bake, target, meshes, *, source_uv, target_uv, tiles, tangent_fr
         if tangent_from_target:
             # Tangents (MikkTSpace) of the shifted target map are those of the target map: a shift keeps them.
             mesh.uv_layers.active = mesh.uv_layers[_TILE_UV]
-    resolution = target.size[0]
-    pixels = np.zeros((resolution, resolution, 4), dtype=np.float32)
+    width, height = target.size
+    pixels = np.zeros((height, width, 4), dtype=np.float32)
     pixels[..., 3] = 1.0  # what use_clear leaves outside the islands and the margin
-    covered = np.zeros((resolution, resolution), dtype=bool)
-    sentinel = np.full(resolution * resolution * 4, _UNWRITTEN, dtype=np.float32)
+    covered = np.zeros((height, width), dtype=bool)
+    sentinel = np.full(width * height * 4, _UNWRITTEN, dtype=np.float32)
     for tile in tiles:
         for mesh, base in zip(meshes, bases):
             mesh.uv_layers[_TILE_UV].uv.foreach_set("vector", (base - tile).ravel())
@@ -201,11 +212,11 @@ def extend_margin(pixels, covered, margin):
     """
     if margin <= 0 or not covered.any() or covered.all():
         return
-    resolution = covered.shape[0]
+    height, width = covered.shape
     padded = np.pad(~covered, margin, mode="wrap")
     distance, (rows, columns) = scipy.ndimage.distance_transform_edt(padded, return_indices=True)
-    inner = (slice(margin, margin + resolution),) * 2
-    rows = (rows[inner] - margin) % resolution
-    columns = (columns[inner] - margin) % resolution
+    inner = (slice(margin, margin + height), slice(margin, margin + width))
+    rows = (rows[inner] - margin) % height
+    columns = (columns[inner] - margin) % width
     fill = ~covered & (distance[inner] <= margin)
     pixels[fill] = pixels[rows[fill], columns[fill]]

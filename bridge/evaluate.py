@@ -17,7 +17,7 @@ import time
 import bpy
 import numpy as np
 
-from ..core.cost import relative_cost, resolution_for_cost
+from ..core.cost import relative_cost, size_for_cost
 from ..core.evaluation import dodecahedron_cameras, perceptual_loss_of_views, symmetric_dirichlet
 from ..core.mesh import concatenate_meshes
 from .material import base_color_image_node
@@ -164,8 +164,13 @@ def checked_inputs(objects, costs, screen_pixels, uv_names):
     return objects, costs
 
 
+def _side(width, height):
+    """The side of the square with an image's pixel count, rounded down (the side itself for a square)."""
+    return int(np.sqrt(width * height))
+
+
 def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
-                    margin=None, reference_views=None, keep_images=False, keep_views=False):
+                    margin=None, reference_views=None, keep_images=False, keep_views=False, aspect=1.0):
     """q_r at each target relative cost and E_iso of UV map ``uv_name`` (paper Sec. 5.1).
 
     Parameters
@@ -189,12 +194,17 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         Keep the baked images (returned under ``images``).
     keep_views : bool, optional
         Return each cost's 20 renders under ``rendered`` in its point.
+    aspect : float, optional
+        Width over height of the image ``uv_name`` was packed for (an ``optimize`` result's image may be a
+        rectangle, ``core.packing``): each cost's image has that shape (:func:`.core.cost.size_for_cost`), so
+        its texels are square on the surface as the packing laid them out.
 
     Returns
     -------
     dict
         ``uv_map``, ``reference_uv``, ``screen_pixels``, ``views`` (20), ``reference_resolution``, ``e_iso``
-        (Eq. 24, normalised), ``points``: one dict per cost with ``target_cost``, ``resolution`` r,
+        (Eq. 24, normalised), ``aspect``, ``points``: one dict per cost with ``target_cost``, ``resolution`` r
+        (``[width, height]`` for an image that is not square),
         ``relative_cost`` (the realised c_r), ``q`` (mean GMSD, Eq. 22), ``q_views`` (20 floats), ``time_s``.
 
     Raises
@@ -212,11 +222,12 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     points, images = [], []
     for target in costs:
         start = time.perf_counter()
-        r = int(resolution_for_cost(uv, target, reference_uv=uv_ref, reference_resolution=r_input))
-        c = float(relative_cost(uv, r, reference_uv=uv_ref, reference_resolution=r_input))
-        image = bake_base_color(objects, source_uv=reference_uv, target_uv=uv_name, resolution=r,
-                                margin=max(2, r // 128) if margin is None else int(margin),
-                                image_name=f"PUV_eval_{uv_name}_{r}")
+        width, height = size_for_cost(uv, target, reference_uv=uv_ref, reference_resolution=r_input, aspect=aspect)
+        c = float(relative_cost(uv, (width, height), reference_uv=uv_ref, reference_resolution=r_input))
+        r = width if width == height else [width, height]
+        image = bake_base_color(objects, source_uv=reference_uv, target_uv=uv_name, resolution=(width, height),
+                                margin=max(2, _side(width, height) // 128) if margin is None else int(margin),
+                                image_name=f"PUV_eval_{uv_name}_{width}" + ("" if width == height else f"x{height}"))
         try:
             views = render_views(objects, uv_name=uv_name, image=image, screen_pixels=screen_pixels)
         finally:
@@ -230,7 +241,8 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         if keep_views:
             points[-1]["rendered"] = views
     result = dict(uv_map=uv_name, reference_uv=reference_uv, screen_pixels=int(screen_pixels),
-                  views=len(reference_views), reference_resolution=r_input, e_iso=e_iso, points=points)
+                  views=len(reference_views), reference_resolution=r_input, e_iso=e_iso, aspect=float(aspect),
+                  points=points)
     if keep_images:
         result["images"] = images
     return result

@@ -36,13 +36,14 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
-from ..core.cost import relative_cost, resolution_for_cost
+from ..core.cost import relative_cost, size_for_cost
+from ..core.packing import image_sizes
 from ..core.evaluation import perceptual_loss_of_views, symmetric_dirichlet
 from .bake import bake_maps
-from .evaluate import _dodecahedron_views, checked_inputs, mesh_arrays, reference_resolution
+from .evaluate import _dodecahedron_views, _side, checked_inputs, mesh_arrays, reference_resolution
 from .map_reads import _reads, bake_kind
 from .material import read_object_materials
-from .material_copy import _raw_bytes, image_side, map_resolution, material_copies, memory_resolution
+from .material_copy import _raw_bytes, image_side, map_scale, material_copies, memory_resolution, scaled_size
 from .render import WorkbenchRenderer
 
 __all__ = ["SAMPLES", "SEED", "LIGHTS", "WORLD_COLOR", "SIZINGS", "ShadedRenderer", "material_records",
@@ -331,17 +332,24 @@ def shaded_reference(objects, reference_uv, *, screen_pixels=512, view_count=Non
                       samples=samples)
 
 
-def _sides(records, sizing, target, r, r_input):
-    """Each map's new side: the base colour's texel-cost side ``r`` scaled by the map's own size (``texels``), or
-    ``round(sqrt(target w h))`` of its own size (``memory``: a uniform downscale of every map)."""
+def _sizes(records, sizing, target, size, r_input, aspect):
+    """Each map's new ``(width, height)``: the base colour's texel-cost ``size`` scaled by the map's own size
+    (``texels``), or ``round(sqrt(target w h))`` of its own size in the shape ``aspect`` (``memory``: a uniform
+    downscale of every map)."""
     if sizing == "memory":
-        return [memory_resolution(tuple(record.image.size), target) for record in records]
-    return [map_resolution(r, image_side(record.image), float(r_input)) for record in records]
+        return [image_sizes(memory_resolution(tuple(record.image.size), target), (aspect,))[0] for record in records]
+    return [scaled_size(size, map_scale(image_side(record.image), float(r_input))) for record in records]
+
+
+def _resolution(size):
+    """A size as the reports give it: the side of a square, ``[width, height]`` otherwise."""
+    width, height = size
+    return int(width) if width == height else [int(width), int(height)]
 
 
 def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
                     sizing="texels", margin=None, reference=None, view_count=None, samples=SAMPLES,
-                    keep_images=False, keep_views=False):
+                    keep_images=False, keep_views=False, aspect=1.0):
     """Shaded q_r and q_r per map of UV map ``uv_name`` at each target cost.
 
     Parameters
@@ -372,16 +380,19 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     keep_images, keep_views : bool, optional
         Keep the baked images (``images``, a list per cost) / return the renders (``reference``, and ``rendered``
         in each point).
+    aspect : float, optional
+        Width over height of the image ``uv_name`` was packed for: every map's image at each cost has that
+        shape (:func:`.evaluate.evaluate_uv_map`).
 
     Returns
     -------
     dict
         ``mode`` "shaded", ``uv_map``, ``reference_uv``, ``screen_pixels``, ``views``, ``samples``, ``sizing``,
         ``reference_resolution``, ``e_iso`` (Eq. 24, as the flat mode), ``maps`` (role, image, kind, input size
-        per map), ``points``: per cost ``target_cost``, ``resolution`` (the base colour's side, or the first
-        map's), ``relative_cost`` (its realised texel cost, Eq. 21), ``memory_ratio`` (the maps' raw bytes after
-        over before), ``q`` (shaded, Eq. 22), ``q_views``, ``maps`` (per map ``role``, ``image``, ``resolution``,
-        ``q``), ``time_s``.
+        per map), ``aspect``, ``points``: per cost ``target_cost``, ``resolution`` (the base colour's side, or
+        the first map's; ``[width, height]`` for an image that is not square), ``relative_cost`` (its realised
+        texel cost, Eq. 21), ``memory_ratio`` (the maps' raw bytes after over before), ``q`` (shaded, Eq. 22),
+        ``q_views``, ``maps`` (per map ``role``, ``image``, ``resolution``, ``q``), ``time_s``.
 
     Raises
     ------
@@ -414,13 +425,14 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     points, images = [], []
     for target in costs:
         start = time.perf_counter()
-        r = int(resolution_for_cost(uv, target, reference_uv=uv_ref, reference_resolution=r_input))
-        sides = _sides(records, sizing, target, r, r_input)
-        c = float(relative_cost(uv, sides[0] if sizing == "memory" else r, reference_uv=uv_ref,
+        size = size_for_cost(uv, target, reference_uv=uv_ref, reference_resolution=r_input, aspect=aspect)
+        sizes = _sizes(records, sizing, target, size, r_input, aspect)
+        c = float(relative_cost(uv, sizes[0] if sizing == "memory" else size, reference_uv=uv_ref,
                                 reference_resolution=r_input))
-        results = bake_maps(objects, records, source_uv=reference_uv, target_uv=uv_name, resolutions=sides,
-                            margin=[max(2, s // 128) if margin is None else int(margin) for s in sides],
-                            names=[f"PUV_eval_{uv_name}_{record.role}_{s}" for record, s in zip(records, sides)])
+        results = bake_maps(objects, records, source_uv=reference_uv, target_uv=uv_name, resolutions=sizes,
+                            margin=[max(2, _side(*s) // 128) if margin is None else int(margin) for s in sizes],
+                            names=[f"PUV_eval_{uv_name}_{record.role}_{s[0]}" + ("" if s[0] == s[1] else f"x{s[1]}")
+                                   for record, s in zip(records, sizes)])
         try:
             baked = {(result.record.image.as_pointer(), result.kind): result.image for result in results}
             views = shaded_views(objects, cameras, baked=baked, uv_name=uv_name, reference_uv=reference_uv,
@@ -430,7 +442,7 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
             for index, (record, result) in enumerate(zip(records, results)):
                 rendered = map_views(objects, record, cameras, uv_name=uv_name, image=result.image,
                                      reads=reads[index], **common)
-                per_map.append(dict(role=record.role, image=record.image.name, resolution=int(sides[index]),
+                per_map.append(dict(role=record.role, image=record.image.name, resolution=_resolution(sizes[index]),
                                     q=float(perceptual_loss_of_views(reference["maps"][index], rendered))))
             # the report's raw bytes (material_copy.map_report): alpha counted when the bake kept it
             before = sum(_raw_bytes(*result.record.image.size, result.alpha, result.record.image.is_float)
@@ -442,7 +454,7 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
             else:
                 for result in results:
                     bpy.data.images.remove(result.image)
-        points.append(dict(target_cost=target, resolution=int(sides[0]), relative_cost=c,
+        points.append(dict(target_cost=target, resolution=_resolution(sizes[0]), relative_cost=c,
                            memory_ratio=after / before if before else None, q=float(q),
                            q_views=[float(x) for x in per_view], maps=per_map,
                            time_s=time.perf_counter() - start))
@@ -450,6 +462,7 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
             points[-1]["rendered"] = views
     result = dict(mode="shaded", uv_map=uv_name, reference_uv=reference_uv, screen_pixels=int(screen_pixels),
                   views=len(cameras), samples=int(samples), sizing=sizing, reference_resolution=int(r_input),
+                  aspect=float(aspect),
                   e_iso=float(symmetric_dirichlet(V, F, uv)),
                   maps=[dict(role=record.role, image=record.image.name, kind=record.kind,
                              input_size=[int(record.image.size[0]), int(record.image.size[1])])

@@ -18,7 +18,8 @@ from .image_file import image_is_float, image_size
 from .material import material_maps, read_material, read_object_materials, render_uv_name
 
 __all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "original_materials", "resolve_source_uv", "read_maps", "loss_planes_of",
-           "iter_loss_planes_of", "image_side", "image_stem", "map_resolution", "memory_resolution",
+           "iter_loss_planes_of", "image_side", "image_stem", "map_resolution", "map_scale", "scaled_size",
+           "memory_resolution", "copy_aspects", "slots_aspect",
            "material_copies", "map_report", "file_bytes"]
 
 MIN_RESOLUTION = 8  # the smallest side of a new image
@@ -71,6 +72,39 @@ def original_materials(objects):
     finally:
         for slot, material in reversed(swapped):
             slot.material = material
+
+
+def copy_aspects(objects, uv_name):
+    """Width over height of the image each Optimize UVs material copy in the slots of ``objects`` reads through
+    ``uv_name`` (its base colour's, else its first map's), by the name of the copy's original material: the image
+    shape the run that made the copy packed ``uv_name`` for (``core.packing``).
+
+    Returns
+    -------
+    dict of str to float
+    """
+    aspects = {}
+    for obj in objects:
+        for slot in obj.material_slots:
+            material = slot.material
+            if material is None or COPY_PROPERTY not in material:
+                continue
+            maps = [record for record in read_material(material, source_uv=uv_name).maps
+                    if record.image is not None and min(record.image.size) > 0]
+            if maps:
+                image = next((record.image for record in maps if record.role == "base_color"), maps[0].image)
+                aspects.setdefault(material[COPY_PROPERTY], float(image.size[0]) / float(image.size[1]))
+    return aspects
+
+
+def slots_aspect(objects, aspects):
+    """The aspect of :func:`copy_aspects` for the first slot of ``objects`` showing one of its originals, else 1
+    (a UV map no run packed: a square)."""
+    for obj in objects:
+        for slot in obj.material_slots:
+            if slot.material is not None and slot.material.name in aspects:
+                return aspects[slot.material.name]
+    return 1.0
 
 
 def resolve_source_uv(objects, source_uv):
@@ -222,10 +256,23 @@ def map_resolution(resolution, input_side, reference_side, *, role_cost=None, re
     int
         ``round(resolution * input_side / reference_side [* sqrt(role_cost / reference_cost)])``, in [8, 16384].
     """
+    scale = map_scale(input_side, reference_side, role_cost=role_cost, reference_cost=reference_cost)
+    return int(min(MAX_RESOLUTION, max(MIN_RESOLUTION, round(resolution * scale))))
+
+
+def map_scale(input_side, reference_side, *, role_cost=None, reference_cost=None):
+    """How many times the base colour's new side a map's new side is (:func:`map_resolution` before rounding):
+    ``input_side / reference_side``, times ``sqrt(role_cost / reference_cost)`` for a role's own cost."""
     scale = input_side / reference_side
     if role_cost is not None and reference_cost:
         scale *= np.sqrt(role_cost / reference_cost)
-    return int(min(MAX_RESOLUTION, max(MIN_RESOLUTION, round(resolution * scale))))
+    return float(scale)
+
+
+def scaled_size(size, scale):
+    """``(width, height)`` scaled by ``scale`` and rounded, each side in [8, 16384]: a map's new image in the shape
+    of the base colour's."""
+    return tuple(int(min(MAX_RESOLUTION, max(MIN_RESOLUTION, round(side * scale)))) for side in size)
 
 
 def memory_resolution(input_size, cost):

@@ -6,8 +6,9 @@ import numpy as np
 __all__ = ["pack_uv_layer", "uv_operator_on_copies"]
 
 
-def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=None, face_stack=None):
-    """Pack the islands of the UV map ``uv_name`` of ``objects`` together into one square image, in place.
+def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=None, face_stack=None,
+                  aspects=(1.0,)):
+    """Pack the islands of the UV map ``uv_name`` of ``objects`` together into one image, in place.
 
     The islands (charts: triangles joined by edges whose UVs agree) move by translations and quarter turns
     and all scale by one factor (:func:`perceptual_uv.core.packing.pack_charts`); the objects' other UV maps,
@@ -22,7 +23,8 @@ def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=
     margin : int
         Smallest gap between islands, in pixels of the packed image.
     resolution : int, optional
-        Side of the image the islands fill (the densest packing that fits).
+        Side of the square whose pixel count the image keeps; the islands fill it (the densest packing that
+        fits).
     texels_per_unit : float, optional
         Pixels per unit of the UV map as it is: the islands keep this density and the image is as large as the
         packing needs. Exactly one of ``resolution`` and ``texels_per_unit`` is given.
@@ -30,6 +32,9 @@ def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=
         Per triangle in the order of :func:`perceptual_uv.bridge.mesh_io.read_mesh` over ``objects``: a stack
         number (:func:`perceptual_uv.core.stacks.stacked_faces`), the triangles of one stack moving as one
         island, or -1 for a triangle that moves with its island. Default: every island alone.
+    aspects : sequence of float, optional
+        Width-to-height ratios the image may take (:func:`perceptual_uv.core.packing.iter_pack_charts`); a
+        square by default.
 
     Returns
     -------
@@ -52,7 +57,8 @@ def pack_uv_layer(objects, uv_name, *, margin, resolution=None, texels_per_unit=
     islands = uv_topology(F, uv).face_chart
     if face_stack is not None:
         islands = packing_islands(islands, face_stack)
-    packing = pack_charts(uv, islands, margin=margin, resolution=resolution, texels_per_unit=texels_per_unit)
+    packing = pack_charts(uv, islands, margin=margin, resolution=resolution, texels_per_unit=texels_per_unit,
+                          aspects=aspects)
     start = 0
     for obj, a in zip(objects, arrays):
         layer = obj.data.uv_layers[uv_name]

@@ -22,8 +22,8 @@ from ..core.progress import InThread, RunProgress, format_seconds, relay_stage, 
 from .image_file import image_size, iter_save_or_pack
 from .loss_overlay import write_loss_attributes
 from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_side, image_stem, iter_loss_planes_of,
-                            map_report, map_resolution, material_copies, memory_resolution, read_maps,
-                            resolve_source_uv, uv_maps_reading)
+                            map_report, map_resolution, map_scale, material_copies, memory_resolution, read_maps,
+                            resolve_source_uv, scaled_size, uv_maps_reading)
 from .read_objects import (READ_STEPS, iter_import_stages, iter_read_objects, one_object_per_mesh, source_image,
                            target_problem)
 
@@ -302,8 +302,8 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                                    step, resolution=sides_by_memory[0] if by_memory else None)
         # What the UV map stores (float32), so the report's figures are those of the saved map.
         uv_out = packing.uv.astype(np.float32).astype(np.float64)
-        resolution = packing.width  # a square: the pipeline packs with the default aspect
-        reuse_out = texel_cost.texel_reuse(uv_out, (resolution, resolution))
+        size = packing.size
+        reuse_out = texel_cost.texel_reuse(uv_out, size)
         # The islands' UV area; stacked islands cover their texels once, so with stacks the texels they cover.
         coverage = texel_cost.uv_area(uv_out) / (reuse_out if stacked else 1.0)
         uv_name = _unique_uv_name(objects, settings.uv_map_name)
@@ -316,30 +316,30 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
                          f"{reuse / reuse_out:.1f} times the input's image memory for the input's texel density, and "
                          "at a lower cost, downscaling the input's images may keep more detail")
         if coverage < LOW_COVERAGE:
-            notes.append(f"the packed UV islands cover {coverage:.0%} of the {resolution} x {resolution} image: it "
+            notes.append(f"the packed UV islands cover {coverage:.0%} of the {size[0]} x {size[1]} image: it "
                          f"holds {1 / coverage:.0f} times the texels the islands use. An island far longer than it "
                          "is wide sets the packing scale; a seam across it lets the islands pack tighter")
         times["pack"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
-        reference_cost = texel_cost.relative_cost(uv_out, resolution, reference_uv=uv_in,
+        reference_cost = texel_cost.relative_cost(uv_out, size, reference_uv=uv_in,
                                                   reference_resolution=(width, height))
         if by_memory and reference_cost > 1:
-            notes.append(f"the new {resolution} x {resolution} image has {reference_cost:.2f} times the input's "
+            notes.append(f"the new {size[0]} x {size[1]} image has {reference_cost:.2f} times the input's "
                          "texels per surface area (relative texel cost, Eq. 21): the input's islands take "
                          f"{texel_cost.uv_area(uv_in):.0%} of its image. A cost of about "
                          f"{settings.target_cost / reference_cost:.2g} keeps the input's texel density")
-        sides, margins, names = _new_images(records, image, resolution, reference_cost, settings, sides_by_memory)
+        sizes, margins, names = _new_images(records, image, size, reference_cost, settings, sides_by_memory)
         # In the background process (the modal operator) the generator yields every 0.1 s while Cycles bakes;
         # in this process each map's bake is one step.
         where = " in a background process" if settings.bake_in_background else ""
-        stage = iter_bake_maps(objects, records, source_uv=source_uv, target_uv=uv_name, resolutions=sides,
+        stage = iter_bake_maps(objects, records, source_uv=source_uv, target_uv=uv_name, resolutions=sizes,
                                margin=margins, names=names, in_background=settings.bake_in_background)
 
         def bake_message(done, total):
             if done < total:
                 return (f"Baking the {records[done].role.replace('_', ' ')} map ({done + 1}/{total}){where}: "
-                        f"{sides[done]} x {sides[done]}")
+                        f"{sizes[done][0]} x {sizes[done][1]}")
             return "Making the new images"
 
         with contextlib.closing(stage):  # a cancel stops the background process at once
@@ -371,7 +371,7 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
             "epsilon": settings.epsilon,
             "target_cost": settings.target_cost if settings.resolution is None else None,
             "cost_measure": settings.cost_measure if settings.resolution is None else None,
-            "resolution": int(resolution),
+            "resolution": [int(side) for side in size],
             "input_resolution": [int(width), int(height)],
             "relative_cost": reference_cost,
             "image_coverage": float(coverage),
@@ -419,35 +419,37 @@ def _overlap_report(uv, face_chart):
             "between_charts": int(overlaps.between_charts)}
 
 
-def _new_images(records, image, resolution, reference_cost, settings, sides_by_memory=None):
-    """Side, margin (pixels) and name of each map's new image, in the order of ``records``.
+def _new_images(records, image, size, reference_cost, settings, sides_by_memory=None):
+    """Size ``(width, height)``, margin (pixels) and name of each map's new image, in the order of ``records``.
 
-    ``sides_by_memory`` (one per map) when the cost is image memory; else the first map (the loss image
-    ``image``) gets the packing's ``resolution`` and every other map the same relative cost, each relative to
-    its own input size (:func:`.material_copy.map_resolution`), a role's cost (``settings.role_costs``)
-    overriding the run's. Margins scale with the side; names follow ``settings.image_name`` or the input
-    image's.
+    The first map (the loss image ``image``) gets the packing's ``size``; every other map the same shape, scaled
+    by its side over the first map's: ``sides_by_memory`` (one per map) when the cost is image memory, else the
+    same relative cost, each relative to its own input size (:func:`.material_copy.map_scale`), a role's cost
+    (``settings.role_costs``) overriding the run's. Margins scale with the width; names follow
+    ``settings.image_name`` or the input image's.
     """
     from ..core.settings import role_cost
 
-    sides, margins, names = [], [], []
+    sizes, margins, names = [], [], []
     for number, record in enumerate(records):
         override = role_cost(settings.role_costs, record.role)
         if sides_by_memory is not None:
-            side = sides_by_memory[number]
+            scale = sides_by_memory[number] / sides_by_memory[0]
+        elif number == 0 and override is None:
+            scale = 1.0
         else:
-            side = (resolution if number == 0 and override is None else
-                    map_resolution(resolution, image_side(record.image), image_side(image), role_cost=override,
-                                   reference_cost=reference_cost))
-        sides.append(side)
-        margins.append(0 if settings.margin == 0 else max(1, round(settings.margin * side / resolution)))
+            scale = map_scale(image_side(record.image), image_side(image), role_cost=override,
+                              reference_cost=reference_cost)
+        map_size = tuple(size) if scale == 1.0 else scaled_size(size, scale)
+        sizes.append(map_size)
+        margins.append(0 if settings.margin == 0 else max(1, round(settings.margin * map_size[0] / size[0])))
         if number == 0:
             names.append(settings.image_name or f"{image_stem(image)}_perceptual")
         elif settings.image_name:
             names.append(f"{settings.image_name}_{record.role}")
         else:
             names.append(f"{image_stem(record.image)}_perceptual")
-    return sides, margins, names
+    return sizes, margins, names
 
 
 def _iter_save_images(bakes, output_dir, created, step):
@@ -481,16 +483,18 @@ def _memory_side(record, settings):
 
 def _pack(uv_in, uv_fit, face_chart, input_size, settings, step, *, resolution=None):
     """Generator: pack the fitted charts on the new image's pixel grid (``core.packing``), yielding ``step``'s
-    "pack" step after each try; returns the packing. The image side follows.
+    "pack" step after each try; returns the packing. The image size follows.
 
     With a target texel cost the charts keep the texel density that meets it (Eq. 20-21: ``d^2`` texels per unit
-    of fitted UV area), and the image is as large as their packing; with an explicit resolution
-    (``settings.resolution``, else ``resolution``: the side the image memory gives) they fill it.
+    of fitted UV area), and the image is as small as their packing; with the side the image memory gives
+    (``resolution``) they fill that many pixels as densely as they can. Either way the image takes the shape of
+    :data:`.core.packing.IMAGE_ASPECTS` that does it best, unless ``settings.square_images``. An explicit
+    ``settings.resolution`` is filled as the square it names.
     """
-    from ..core.packing import iter_pack_charts
+    from ..core.packing import IMAGE_ASPECTS, iter_pack_charts
 
-    def packed(**size):
-        stage = iter_pack_charts(uv_fit, face_chart, margin=settings.margin, **size)
+    def packed(aspects, **size):
+        stage = iter_pack_charts(uv_fit, face_chart, margin=settings.margin, aspects=aspects, **size)
         while True:
             try:
                 next(stage)
@@ -498,15 +502,22 @@ def _pack(uv_in, uv_fit, face_chart, input_size, settings, step, *, resolution=N
                 return finished.value
             yield step("pack", 0, 1, "Packing islands")
 
+    square = (1.0,)
     if settings.resolution is not None:
-        resolution = settings.resolution
+        return (yield from packed(square, resolution=settings.resolution))
+    aspects = square if settings.square_images else IMAGE_ASPECTS
     if resolution is not None:
-        return (yield from packed(resolution=resolution))
+        packing = yield from packed(aspects, resolution=resolution)
+        if min(packing.size) < MIN_RESOLUTION:  # a rectangle of a few pixels: the square keeps both sides
+            packing = yield from packed(square, resolution=resolution)
+        return packing
     reference = texel_cost.texel_cost(uv_in, input_size)
     density = np.sqrt(settings.target_cost * reference / texel_cost.uv_area(uv_fit))
-    packing = yield from packed(texels_per_unit=density)
+    packing = yield from packed(aspects, texels_per_unit=density)
     if min(packing.size) < MIN_RESOLUTION:
-        packing = yield from packed(resolution=MIN_RESOLUTION)
+        packing = yield from packed(square, texels_per_unit=density)
+    if min(packing.size) < MIN_RESOLUTION:
+        packing = yield from packed(square, resolution=MIN_RESOLUTION)
     return packing
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from ._jit import njit
 from .charts import signed_uv_areas
 
-__all__ = ["uv_area", "texel_reuse", "texel_cost", "relative_cost", "resolution_for_cost"]
+__all__ = ["uv_area", "texel_reuse", "texel_cost", "relative_cost", "resolution_for_cost", "size_for_cost"]
 
 
 def uv_area(uv):
@@ -178,3 +178,33 @@ def resolution_for_cost(uv, target, *, reference_uv, reference_resolution, minim
     candidates = [max(minimum, int(np.floor(exact))), max(minimum, int(np.ceil(exact)))]
     errors = [abs(r * r * area / reference - target) for r in candidates]
     return candidates[1] if errors[1] <= errors[0] else candidates[0]
+
+
+def size_for_cost(uv, target, *, reference_uv, reference_resolution, aspect=1.0, minimum=1):
+    """The image size ``(width, height)`` of a width-to-height ratio whose relative cost is closest to a target.
+
+    Parameters
+    ----------
+    uv, target, reference_uv, reference_resolution, minimum
+        As :func:`resolution_for_cost` takes them.
+    aspect : float, optional
+        Width over height of the image the UV map was laid out for (a packing's, ``core.packing``): texels stay
+        square only in an image of that shape.
+
+    Returns
+    -------
+    (int, int)
+        ``(r, r)`` from :func:`resolution_for_cost` for an aspect of 1; otherwise the side ``s`` that meets the
+        target exactly as a square's, ``(round(s sqrt(aspect)), round(s / sqrt(aspect)))``, each at least
+        ``minimum``.
+    """
+    if not aspect > 0:
+        raise ValueError(f"aspect must be positive, got {aspect}")
+    if aspect == 1.0:
+        side = resolution_for_cost(uv, target, reference_uv=reference_uv, reference_resolution=reference_resolution,
+                                   minimum=minimum)
+        return side, side
+    resolution_for_cost(uv, target, reference_uv=reference_uv, reference_resolution=reference_resolution)  # checks
+    exact = np.sqrt(target * texel_cost(reference_uv, reference_resolution) / uv_area(uv))
+    return (max(minimum, int(round(exact * np.sqrt(aspect)))), max(minimum, int(round(exact / np.sqrt(aspect)))))
+

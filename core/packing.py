@@ -167,14 +167,7 @@ def iter_pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution
         return (yield from _pack_at(layout, float(texels_per_unit), aspects))
     if not 1 <= resolution <= _MAX_SIDE:
         raise ValueError(f"resolution must be in [1, {_MAX_SIDE}], got {resolution}")
-    best = None
-    # Every size starts its density search from the same guess, so the sizes try the same densities and share
-    # their bitmaps (the dearer half of a try).
-    start = int(resolution) * np.sqrt(0.6 / area)
-    for width, height in image_sizes(int(resolution), aspects):
-        packing = yield from _pack_into(layout, width, height, start)
-        if packing is not None and (best is None or packing.texels_per_unit > best.texels_per_unit):
-            best = packing
+    best = yield from _pack_into(layout, image_sizes(int(resolution), aspects), int(resolution) * np.sqrt(0.6 / area))
     if best is None:
         raise ValueError(f"the charts do not fit a {resolution} px image with a {margin} px margin: lower the "
                          "margin or give the image more pixels (a higher cost or resolution)")
@@ -241,53 +234,70 @@ class _Layout:
                        texels_per_unit=float(density), coverage=coverage)
 
 
-def _pack_into(layout, width, height, density):
-    """Generator: the densest packing found that fits a ``width x height`` image, scaled up to fill it, or None.
+def _pack_into(layout, sizes, density):
+    """Generator: the densest packing found that fits one of ``sizes`` (``(width, height)`` each), scaled up to
+    fill it, or None.
 
-    Each try fills a strip as wide as the image bottom-left and fits if it is no higher. The density moves in
-    5 % steps from ``density`` (a guess) until one try fits and the next does not, then 1 % steps go down from
-    the one that did not (whether a packing fits is not monotonic in the density) and the first that fits wins.
-    Its layout is then scaled up until the charts reach the far border but for half a margin (every gap grows
-    with it).
+    Each try fills a strip as wide as an image bottom-left and fits if it is no higher; a density fits when one
+    size does. The density moves in 5 % steps from ``density`` (a guess) until one try fits and the next does
+    not, then 1 % steps go down from the one that did not (whether a packing fits is not monotonic in the
+    density) and the first that fits wins. Every size that fits at that density is scaled up until its charts
+    reach the far border but for half a margin (every gap grows with it), and the densest result wins, the
+    earlier size of equals. The sizes share one density search, so they share its bitmaps too.
     """
-    def attempt(density):  # a generator: each try hands control back
+    def attempt(density, every=False):  # generator: the packings in the sizes that fit (the first only if not every)
+        found = []
         if layout.too_dense(density):
-            return None
-        return (yield from layout.place(density, width, height))
+            return found
+        for width, height in sizes:
+            packing = yield from layout.place(density, width, height)
+            if packing is not None:
+                found.append(packing)
+                if not every:
+                    break
+        return found
 
     best = yield from attempt(density)
     too_dense = None
     for _ in range(100):
-        if best is None:  # shrink until a try fits
+        if not best:  # shrink until a try fits
             too_dense, density = density, density / 1.05
             best = yield from attempt(density)
             continue
         if too_dense is not None:
             break
         larger = yield from attempt(density * 1.05)  # grow until a try does not fit
-        if larger is None:
+        if not larger:
             too_dense = density * 1.05
         else:
             density, best = density * 1.05, larger
-    if best is None:
+    if not best:
         return None
     for step in range(1, 5):
         candidate = too_dense / 1.01 ** step
         if candidate <= density:
             break
         finer = yield from attempt(candidate)
-        if finer is not None:
-            best = finer
+        if finer:
+            density, best = candidate, finer
             break
-    # Scale the layout until the charts reach the far border but for half a margin: every gap grows with it.
-    reach = best.uv.reshape(-1, 2).max(axis=0) * (width, height)
-    room = np.array([width, height], dtype=np.float64) - (layout.margin + 1) // 2
+    if len(sizes) > 1:
+        best = yield from attempt(density, every=True)
+    return max((_fill(packing, layout.margin) for packing in best), key=lambda packing: packing.texels_per_unit)
+
+
+def _fill(packing, margin):
+    """``packing`` scaled up until its charts reach the far border but for half a margin."""
+    width, height = packing.size
+    reach = packing.uv.reshape(-1, 2).max(axis=0) * (width, height)
+    room = np.array([width, height], dtype=np.float64) - (margin + 1) // 2
     scale = max(float(np.min(np.where(reach > 0, room / np.maximum(reach, 1e-300), np.inf))), 1.0)
     if not np.isfinite(scale):
         scale = 1.0
     size = np.array([width, height], dtype=np.float64)
-    return Packing(uv=best.uv * size * scale / size, width=width, height=height, turns=best.turns,
-                   texels_per_unit=best.texels_per_unit * scale, coverage=best.coverage * (width * scale / width) ** 2)
+    return Packing(uv=packing.uv * size * scale / size, width=width, height=height, turns=packing.turns,
+                   texels_per_unit=packing.texels_per_unit * scale,
+                   coverage=packing.coverage * (width * scale / width) ** 2)
 
 
 def _pack_at(layout, density, aspects):

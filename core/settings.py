@@ -67,6 +67,11 @@ class OptimizeSettings:
         stay stacked: they keep their input layout together, scaled to the size the method gives them, and
         pack as one island (``core.stacks``), so the new images hold their texels once. Off, every island gets
         texels of its own.
+    square_images : bool
+        Every new image is a square. Off (the default), the packing chooses the image's width-to-height ratio
+        among :data:`.packing.IMAGE_ASPECTS` (2:1 to 1:2): the one that holds the islands at the highest texel
+        density for the image memory, or in the fewest pixels for the texel cost; every map of the material gets
+        that shape. An explicit ``resolution`` is always a square.
     workers : int
         Worker processes for the triangle-wise stage; 0 means one per core.
     seed : int
@@ -110,6 +115,7 @@ class OptimizeSettings:
     max_screen_pixels: int = 256
     margin: int = 4
     keep_stacks: bool = True
+    square_images: bool = False
     workers: int = 0
     seed: int = 0
     uv_map_name: str = "PerceptualUV"

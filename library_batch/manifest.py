@@ -85,8 +85,12 @@ def image_memory(report):
     size_in, size_out = report.get("input_resolution"), report.get("resolution")
     if not size_in or not size_out:
         return None, None
-    before = int(size_in[0]) * int(size_in[1]) if isinstance(size_in, (list, tuple)) else int(size_in) ** 2
-    return before * _BYTES_PER_TEXEL, int(size_out) ** 2 * _BYTES_PER_TEXEL
+    return _pixels(size_in) * _BYTES_PER_TEXEL, _pixels(size_out) * _BYTES_PER_TEXEL
+
+
+def _pixels(size):
+    """Pixels of an image whose report gives ``[width, height]`` or (older reports) its side."""
+    return int(size[0]) * int(size[1]) if isinstance(size, (list, tuple)) else int(size) ** 2
 
 
 _CSV_FIELDS = ("asset", "status", "time_s", "attempts", "relative_cost", "resolution", "image_bytes_before",
@@ -148,6 +152,8 @@ def write_summary(folder, summary, entries):
     writer = csv.DictWriter(buffer, fieldnames=_CSV_FIELDS, extrasaction="ignore", lineterminator="\n")
     writer.writeheader()
     for entry in sorted(entries, key=lambda e: e["asset"]):
-        writer.writerow(dict(entry, outputs=" ".join(entry.get("outputs", [])), attempts=entry.get("attempts")))
+        size = entry.get("resolution")
+        writer.writerow(dict(entry, outputs=" ".join(entry.get("outputs", [])), attempts=entry.get("attempts"),
+                             resolution="x".join(map(str, size)) if isinstance(size, (list, tuple)) else size))
     _replace_text(csv_path, buffer.getvalue())
     return json_path, csv_path

@@ -50,7 +50,7 @@ def batch_settings(args):
             "cost_measure": None if args.resolution is not None else args.cost_measure,
             "resolution": args.resolution, "iterations": args.iterations, "screen_pixels": args.screen_pixels,
             "max_screen_pixels": args.max_screen_pixels, "margin": args.margin, "seed": args.seed,
-            "role_costs": sorted(args.cost_for)}
+            "role_costs": sorted(args.cost_for), "keep_stacks": args.keep_stacks, "square_images": args.square_images}
 
 
 def optimize_options(args):
@@ -63,6 +63,10 @@ def optimize_options(args):
                 "--workers", str(args.workers), "--seed", str(args.seed)]
     if args.fresh:
         options.append("--fresh")
+    if not args.keep_stacks:
+        options.append("--unstack")
+    if args.square_images:
+        options.append("--square-images")
     for role, cost in args.cost_for:
         options += ["--cost-for", f"{role}={cost!r}"]
     if args.object:

@@ -61,7 +61,8 @@ class UV_OT_perceptual_optimize(bpy.types.Operator):
             report = result.report
             memory = report.get("memory_ratio")
             memory = f"image memory {memory:.2f} of the input's, " if memory is not None else ""
-            self.report({"INFO"}, f"{report['uv_map']}: {report['resolution']} px image '{report['image']}', "
+            width, height = report["resolution"]
+            self.report({"INFO"}, f"{report['uv_map']}: {width} x {height} px image '{report['image']}', "
                         f"{memory}relative texel cost {report['relative_cost']:.2f}, "
                         f"{report['triangles_within_bound']:.0%} of triangles within the loss bound, "
                         f"{report['times_s']['total']:.0f} s")

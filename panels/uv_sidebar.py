@@ -52,6 +52,7 @@ class IMAGE_PT_perceptual_uv(bpy.types.Panel):
         col = layout.column(heading="Output")
         col.prop(settings, "margin")
         col.prop(settings, "keep_stacks")
+        col.prop(settings, "square_images")
         col.prop(settings, "uv_map_name")
         col.prop(settings, "image_name")
         col.prop(settings, "use_material_copy")

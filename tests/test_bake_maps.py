@@ -407,13 +407,16 @@ def pbr_run():
 def test_every_map_gets_a_new_image_of_its_relative_size(pbr_run):
     obj, result, images_before = pbr_run
     report = result.report
-    resolution = report["resolution"]
+    width, height = report["resolution"]
     maps = {entry["role"]: entry for entry in report["maps"]}
     assert set(maps) == {"base_color", "normal_tangent", "metallic_roughness", "emissive"}
-    expected = {"base_color": resolution, "metallic_roughness": resolution,
-                "normal_tangent": max(8, round(resolution / 2)), "emissive": max(8, round(resolution / 4))}
-    for role, side in expected.items():
-        assert maps[role]["new_size"] == [side, side], role
+    # at 0.3 of the memory the 64, 32 and 16 px maps get sides round(sqrt(0.3) x): 35, 18 (17.5) and 9 (8.8); the
+    # base colour's image takes the packing's shape, holding at most 35 x 35 pixels, and every map that shape
+    assert width * height <= 35 * 35 and maps["base_color"]["new_size"] == [width, height]
+    sides = {"base_color": 35, "metallic_roughness": 35, "normal_tangent": 18, "emissive": 9}
+    for role, side in sides.items():
+        expected = [max(8, round(width * side / 35)), max(8, round(height * side / 35))]
+        assert maps[role]["new_size"] == expected, role
         assert maps[role]["new_image"] not in images_before
     assert len(result.images) == 4 and result.images[0] == result.image
     assert [image.name for image in result.images] == [entry["new_image"] for entry in report["maps"]]
@@ -465,9 +468,10 @@ def test_a_memory_cost_sizes_every_map_from_its_own_pixels():
     quarter of theirs."""
     sides = {}
     for role_costs in ((), (("normal", 0.0625),)):
-        settings = OptimizeSettings(**dict(FAST, target_cost=0.25, cost_measure="memory", role_costs=role_costs))
+        settings = OptimizeSettings(**dict(FAST, target_cost=0.25, cost_measure="memory", role_costs=role_costs,
+                                           square_images=True))
         report = run_to_end(optimize_objects([pbr_grid()], settings)).report
-        assert report["cost_measure"] == "memory" and report["resolution"] == 32
+        assert report["cost_measure"] == "memory" and report["resolution"] == [32, 32]
         sides[role_costs] = {entry["role"]: entry["new_size"] for entry in report["maps"]}
         if not role_costs:
             assert report["memory_ratio"] == pytest.approx(0.25, rel=1e-12)
@@ -603,7 +607,8 @@ def test_waterbottle_shaded_views_of_the_glb_are_those_of_the_result_in_blender(
     # the uniform downscale at the run's cost, image memory: each map round(sqrt(0.3 w h)) on a side, as the run's
     downscale = evaluate_shaded(objects, uv, reference_uv=uv, costs=(FAST["target_cost"],), sizing="memory",
                                 screen_pixels=SHADED_PIXELS, reference=reference)["points"][0]
-    result = run_to_end(optimize_objects(objects, OptimizeSettings(**FAST)))
+    # square images: the downscale's sides exactly (a rectangle keeps to at most the square's pixels)
+    result = run_to_end(optimize_objects(objects, OptimizeSettings(**dict(FAST, square_images=True))))
     assert result.report["memory_ratio"] == pytest.approx(downscale["memory_ratio"], rel=1e-9)
     in_blender = shaded_views(objects, cameras, screen_pixels=SHADED_PIXELS)
     out = tmp_path / "wb.glb"

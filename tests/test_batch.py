@@ -165,6 +165,21 @@ def test_the_cost_measure_reaches_every_asset_and_its_key():
     assert "--cost-measure" not in optimize_options(explicit) and batch_settings(explicit)["cost_measure"] is None
 
 
+@pytest.mark.parametrize("flags", [["--unstack"], ["--square-images"], ["--unstack", "--square-images"]])
+def test_the_packing_options_reach_every_asset_and_its_key(flags):
+    from perceptual_uv.library_batch.run import batch_settings, optimize_options
+
+    default = parse_args(["batch", "lib", "--out", "o"])
+    given = parse_args(["batch", "lib", "--out", "o", *flags])
+    child = parse_args(["optimize", str(SPOT / "spot_triangulated.obj"), "--out", "x.blend",
+                        *optimize_options(given)])
+    assert child.settings == given.settings != default.settings  # the child runs with the batch's settings
+    models = [SPOT / "spot_triangulated.obj"]
+    keys = {plan_assets(models, [SPOT], out=pathlib.Path("o"), settings=batch_settings(args))[0].key
+            for args in (default, given)}
+    assert len(keys) == 2  # another packing is another result: not skipped as done
+
+
 def test_manifest_keeps_the_last_entry_and_knows_what_is_finished(tmp_path):
     manifest = Manifest(tmp_path)
     (tmp_path / "a").mkdir()
@@ -260,7 +275,7 @@ def test_batch_runs_a_library_records_it_and_resumes(tmp_path):
     assert done["status"] == "done" and done["attempts"] == 1 and done["duplicate_of"] is None
     assert done["outputs"] == ["a/spot/spot.blend", "a/spot/spot.report.json", "a/spot/spot_texture_perceptual.png"]
     report = json.loads((out / "a" / "spot" / "spot.report.json").read_text())
-    assert report["resolution"] == 64 and done["relative_cost"] == report["relative_cost"]
+    assert report["resolution"] == [64, 64] and done["relative_cost"] == report["relative_cost"]
     assert done["image_bytes_before"] == 1024 * 1024 * 4 and done["image_bytes_after"] == 64 * 64 * 4
     assert done["time_s"] > 0 and done["output_bytes"] == sum((out / p).stat().st_size for p in done["outputs"])
     # The duplicate (same bytes and settings, another name) ran once; its folder holds copies named after it.

@@ -68,7 +68,7 @@ def test_killed_child_or_worker_is_retried_and_the_asset_completes(tmp_path, vic
     assert entry["status"] == "done" and entry["attempts"] == 2 and entry["asset"] == "spot.obj"
     assert sorted(p.name for p in (out / "spot").iterdir()) == ["spot.blend", "spot.report.json",
                                                                  "spot_texture_perceptual.png"]
-    assert json.loads((out / "spot" / "spot.report.json").read_text())["resolution"] == 64
+    assert json.loads((out / "spot" / "spot.report.json").read_text())["resolution"] == [64, 64]
     assert leftovers(out) == []
 
 

@@ -93,6 +93,34 @@ def test_bake_copies_texels_exactly_on_the_same_layout():
     assert image.colorspace_settings.name == "sRGB" and tuple(image.size) == (8, 8)
 
 
+def test_bake_into_a_rectangle_copies_a_rectangular_source_on_the_same_layout():
+    rng = np.random.default_rng(3)
+    texture = np.ones((4, 8, 4))  # 8 columns, 4 rows
+    texture[..., :3] = rng.integers(0, 256, (4, 8, 3)) / 255.0
+    obj = textured_quads([np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)], texture)
+    obj.data.uv_layers.new(name="Same", do_init=True)
+    image = bake_base_color([obj], source_uv="UVMap", target_uv="Same", resolution=(8, 4), margin=2,
+                            image_name="wide")
+    assert tuple(image.size) == (8, 4)
+    baked = np.empty(8 * 4 * 4, dtype=np.float32)
+    image.pixels.foreach_get(baked)
+    np.testing.assert_allclose(baked.reshape(4, 8, 4)[..., :3], texture[..., :3], atol=ONE_STEP)
+
+
+def test_the_margin_of_a_rectangle_wraps_each_axis_at_its_own_length():
+    from perceptual_uv.bridge.cycles_bake import extend_margin
+
+    covered = np.zeros((3, 5), dtype=bool)  # 3 rows, 5 columns
+    covered[0, 0] = True
+    pixels = np.zeros((3, 5, 4), dtype=np.float32)
+    pixels[0, 0] = 1.0
+    extend_margin(pixels, covered, 1)
+    # within one texel of (0, 0): its row neighbours (0, 1) and (0, 4) across the right edge, its column
+    # neighbours (1, 0) and (2, 0) across the top; diagonals are sqrt(2) away
+    filled = {(int(r), int(c)) for r, c in zip(*np.nonzero(pixels[..., 0]))}
+    assert filled == {(0, 0), (0, 1), (0, 4), (1, 0), (2, 0)}
+
+
 def test_objects_sharing_a_material_bake_from_one_copy_of_its_image(monkeypatch):
     from perceptual_uv.bridge import bake
 

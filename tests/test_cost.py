@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from perceptual_uv.core.cost import relative_cost, resolution_for_cost, texel_cost, texel_reuse, uv_area
+from perceptual_uv.core.cost import (relative_cost, resolution_for_cost, size_for_cost, texel_cost, texel_reuse,
+                                     uv_area)
 
 # Two triangles: the lower-left half of the unit square (area 1/2) and a small one of area 1/8.
 UV = np.array([[[0, 0], [1, 0], [0, 1]], [[0, 0], [0.5, 0], [0.5, 0.5]]], dtype=float)
@@ -37,6 +38,18 @@ def test_resolution_for_cost_picks_the_closer_integer():
     # Exact r = 10.4, i.e. r^2 = 108.16: r = 10 misses by 8.16 texels^2, r = 11 by 12.84, so 10.
     target = 10.4 ** 2 / 1024 ** 2
     assert resolution_for_cost(UV, target, reference_uv=UV, reference_resolution=1024) == 10
+
+
+def test_size_for_cost_keeps_the_aspect_and_the_square_side():
+    # c_r 0.3 of a 1024 px input: a square side of 560.88; at 2:1, 560.88 sqrt(2) = 793.2 by 560.88 / sqrt(2) = 396.6
+    assert size_for_cost(UV, 0.3, reference_uv=UV, reference_resolution=1024) == (561, 561)
+    assert size_for_cost(UV, 0.3, reference_uv=UV, reference_resolution=1024, aspect=2.0) == (793, 397)
+    width, height = size_for_cost(UV, 0.3, reference_uv=UV, reference_resolution=1024, aspect=0.75)
+    assert (width, height) == (486, 648)  # 560.88 sqrt(3/4) = 485.7, 560.88 / sqrt(3/4) = 647.6
+    assert relative_cost(UV, (width, height), reference_uv=UV, reference_resolution=1024) == pytest.approx(0.3,
+                                                                                                          rel=2e-3)
+    with pytest.raises(ValueError, match="aspect"):
+        size_for_cost(UV, 0.3, reference_uv=UV, reference_resolution=1024, aspect=0)
 
 
 def test_zero_area_is_refused():

@@ -130,7 +130,7 @@ def test_evaluating_an_optimize_result_compares_against_the_material_the_run_rea
     reset_blender_scene()
     obj = textured_grid("evaluated", k=4)
     original = obj.material_slots[0].material
-    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**dict(FAST, square_images=True))))
     assert obj.material_slots[0].material is not original  # the copy
     optimized = tmp_path / "optimized.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(optimized), copy=True)
@@ -148,3 +148,45 @@ def test_evaluating_an_optimize_result_compares_against_the_material_the_run_rea
     capsys.readouterr()
     assert outputs[0]["resolution"] == outputs[1]["resolution"]
     assert outputs[0]["q"] == outputs[1]["q"]
+
+
+def test_an_optimize_result_packed_for_a_rectangle_is_measured_in_images_of_that_shape(spot_obj, tmp_path, capsys):
+    # The run's image is width x height: every cost's image keeps that shape (texels stay square on the surface
+    # as the packing laid them out); the same UV map read by no copy is measured in squares.
+    import json
+
+    from perceptual_uv.bridge.mesh_io import read_mesh
+    from perceptual_uv.bridge.pipeline import optimize_objects, run_to_end
+    from perceptual_uv.cli import main
+    from perceptual_uv.core.cost import size_for_cost
+    from perceptual_uv.core.settings import OptimizeSettings
+
+    from conftest import reset_blender_scene
+    from test_optimize_end_to_end import FAST, spot_patch
+
+    reset_blender_scene()
+    obj = spot_patch(spot_obj, above=1.0)
+    result = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST)))
+    width, height = result.report["resolution"]
+    assert width != height  # this patch packs into a 1:2 image (test_optimize_end_to_end)
+    new = read_mesh(obj, uv_name=result.uv_map).uv
+    source = read_mesh(obj, uv_name="UVMap").uv
+    optimized = tmp_path / "optimized.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(optimized), copy=True)
+    obj.material_slots[0].link = "DATA"  # the original material: no copy says what the map was packed for
+    plain = tmp_path / "plain.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(plain), copy=True)
+    outputs = {}
+    for path in (optimized, plain):
+        out = tmp_path / f"{path.stem}.json"
+        assert main(["evaluate", str(path), "--uv", result.uv_map, "--costs", "0.5", "--screen", "32",
+                     "--json", str(out)]) == 0
+        outputs[path.stem] = json.loads(out.read_text())
+    capsys.readouterr()
+    assert outputs["optimized"]["aspect"] == pytest.approx(width / height)
+    expected = size_for_cost(new, 0.5, reference_uv=source, reference_resolution=1024, aspect=width / height)
+    assert outputs["optimized"]["points"][0]["resolution"] == list(expected) and expected[0] != expected[1]
+    assert outputs["plain"]["aspect"] == 1.0
+    side = size_for_cost(new, 0.5, reference_uv=source, reference_resolution=1024)[0]
+    assert outputs["plain"]["points"][0]["resolution"] == side
+

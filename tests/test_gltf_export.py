@@ -141,7 +141,7 @@ def check_export(input_path, out, report):
             image = gltf["images"][gltf["textures"][base["index"]]["source"]]
             assert image["name"] == pathlib.Path(report["image"]).stem
             data, _ = buffer_view_bytes(gltf, binary, image["bufferView"])
-            assert image_size(data) == (report["resolution"], report["resolution"])
+            assert image_size(data) == tuple(report["resolution"])
             # TEXCOORD_0 is the packed new UV map: its triangles cover what the report measured on it.
             uv = accessor(gltf, binary, attributes["TEXCOORD_0"]).astype(np.float64)
             triangles = uv[accessor(gltf, binary, primitive["indices"]).reshape(-1, 3)]

@@ -81,7 +81,7 @@ def test_operator_adds_uv_map_image_and_loss_attribute(optimized):
     assert [layer.name for layer in mesh.uv_layers] == ["UVMap", "PerceptualUV"]
     assert mesh.uv_layers.active.name == "UVMap"
     image = bpy.data.images["spot_texture_perceptual"]
-    assert image.size[0] == image.size[1] and image.size[0] >= 8
+    assert min(image.size) >= 8
     assert image.packed_file is not None  # the file is unsaved: the image travels inside it
     assert LOSS_ATTRIBUTE in mesh.attributes
     losses = np.empty(len(mesh.polygons), dtype=np.float32)
@@ -114,8 +114,8 @@ def test_new_uv_map_is_packed_and_meets_the_cost(optimized):
         per_loop[name] = uv.reshape(-1, 2)[loops.reshape(-1, 3)]
     new = per_loop["PerceptualUV"]
     assert new.min() >= 0 and new.max() <= 1
-    r = bpy.data.images["spot_texture_perceptual"].size[0]
-    cost = relative_cost(new, r, reference_uv=per_loop["UVMap"], reference_resolution=1024)
+    size = tuple(bpy.data.images["spot_texture_perceptual"].size)
+    cost = relative_cost(new, size, reference_uv=per_loop["UVMap"], reference_resolution=1024)
     assert abs(cost - FAST["target_cost"]) <= 0.05 * FAST["target_cost"]
 
 
@@ -268,9 +268,10 @@ def test_the_default_cost_is_the_images_memory(registered, spot_obj, tmp_path):
 
     obj = spot_patch(spot_obj, above=1.0)
     assert OptimizeSettings(**FAST).cost_measure == "memory"
-    report = run_to_end(optimize_objects([obj], OptimizeSettings(**FAST), output_dir=str(tmp_path))).report
+    square = OptimizeSettings(**dict(FAST, square_images=True))
+    report = run_to_end(optimize_objects([obj], square, output_dir=str(tmp_path))).report
     assert report["cost_measure"] == "memory" and report["target_cost"] == 0.3
-    assert report["resolution"] == 561 and bpy.data.images[report["image"]].size[:] == (561, 561)
+    assert report["resolution"] == [561, 561] and bpy.data.images[report["image"]].size[:] == (561, 561)
     assert report["maps"][0]["new_size"] == [561, 561] and report["maps"][0]["input_size"] == [1024, 1024]
     assert report["memory_ratio"] == pytest.approx(561 ** 2 / 1024 ** 2, rel=1e-12)
     assert abs(report["memory_ratio"] - 0.3) <= (2 * 561 + 1) / 1024 ** 2  # one pixel of side either way
@@ -285,13 +286,34 @@ def test_the_default_cost_is_the_images_memory(registered, spot_obj, tmp_path):
     assert f"{report['relative_cost']:.2f} times the input's texels" in note
 
 
+def test_the_new_images_take_the_shape_that_holds_the_islands_densest(registered, spot_obj, tmp_path):
+    from perceptual_uv.bridge.pipeline import run_to_end
+    from perceptual_uv.core.packing import IMAGE_ASPECTS, image_sizes
+
+    square = run_to_end(optimize_objects([spot_patch(spot_obj, above=1.0)],
+                                         OptimizeSettings(**dict(FAST, square_images=True)),
+                                         output_dir=str(tmp_path))).report
+    shaped = run_to_end(optimize_objects([spot_patch(spot_obj, above=1.0)], OptimizeSettings(**FAST),
+                                         output_dir=str(tmp_path))).report
+    width, height = shaped["resolution"]
+    assert width != height  # this patch's islands fill a 1:2 image best (397 x 792, coverage 0.59 against 0.44)
+    # 0.3 of the 1024 px image's memory: at most 561 x 561 pixels, in one of the shapes the packing tries
+    assert (width, height) in image_sizes(561, IMAGE_ASPECTS) and width * height <= 561 ** 2
+    assert bpy.data.images[shaped["image"]].size[:] == (width, height)
+    assert shaped["maps"][0]["new_size"] == [width, height]
+    assert shaped["memory_ratio"] == pytest.approx(width * height / 1024 ** 2, rel=1e-12)
+    # the square is one of the shapes tried, so the chosen shape holds the same islands at least as densely
+    assert shaped["relative_cost"] >= square["relative_cost"] * (1 - 1e-6)
+    assert shaped["image_coverage"] >= square["image_coverage"] * (1 - 1e-6)
+
+
 def test_an_explicit_resolution_wins_over_either_measure(registered, spot_obj, tmp_path):
     from perceptual_uv.bridge.pipeline import run_to_end
 
     obj = spot_patch(spot_obj, above=1.0)
     settings = OptimizeSettings(**dict(FAST, resolution=96))
     report = run_to_end(optimize_objects([obj], settings, output_dir=str(tmp_path))).report
-    assert report["resolution"] == 96 and report["cost_measure"] is None and report["target_cost"] is None
+    assert report["resolution"] == [96, 96] and report["cost_measure"] is None and report["target_cost"] is None
 
 
 def test_the_sidebar_fields_become_settings(registered):
