@@ -7,6 +7,7 @@ triangles. Reading never changes Blender data; writing only ever adds a new UV m
 import contextlib
 import os
 import pathlib
+import re
 import sys
 import tempfile
 
@@ -68,10 +69,23 @@ def import_model(path):
                 else:
                     bpy.ops.import_scene.gltf(filepath=str(path))
     except RuntimeError as error:
-        hint = (" (Blender reads binary FBX only: save the file as binary FBX, e.g. with Autodesk's FBX Converter or "
-                "the program that wrote it, or export it as glTF)" if "ASCII FBX" in str(error) else "")
-        raise ValueError(f"could not load {path}: {error}{hint}") from error
+        raise ValueError(f"could not load {path}: {error}{_load_hint(str(error))}") from error
     return sorted(bpy.context.scene.objects, key=lambda obj: obj.name)
+
+
+def _load_hint(message):
+    """What to do about an importer's failure ``message``, in parentheses, or "" when there is nothing to add."""
+    if "ASCII FBX" in message:
+        return (" (Blender reads binary FBX only: save the file as binary FBX, e.g. with Autodesk's FBX Converter or "
+                "the program that wrote it, or export it as glTF)")
+    missing = re.search(r"Extension (\S+) is not available", message)
+    if missing is None:
+        return ""
+    if missing.group(1) == "EXT_meshopt_compression":
+        return (" (Blender's glTF importer does not decode meshopt-compressed meshes: write the file without the "
+                "compression first, e.g. `npx @gltf-transform/cli copy IN OUT`)")
+    return (f" (the file requires the glTF extension {missing.group(1)}, which Blender's glTF importer does not "
+            "read: export the model without it)")
 
 
 @contextlib.contextmanager
