@@ -295,6 +295,7 @@ def test_batch_runs_a_library_records_it_and_resumes(tmp_path):
     assert summary["cluster"]["workers"] == 2
     rows = (out / "summary.csv").read_text().splitlines()
     assert rows[0].startswith("asset,status,time_s") and len(rows) == 4
+    assert sum(",64x64," in row for row in rows[1:]) == 2  # the new images' width x height
     assert "bad_input: bad.obj: " in result.stdout and "image memory: 8.0 MiB -> 32.0 KiB" in result.stdout
     assert "batch: 2 Dask worker(s) on a local cluster" in result.stderr
     assert "finished (" in result.stderr and "ETA" in result.stderr
