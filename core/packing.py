@@ -315,8 +315,8 @@ def _pack_at(layout, density, aspects):
         def attempt(side):  # generator: the packing in the image of this side, or None
             return (yield from layout.place(density, *size(side)))
 
-        start = max(int(np.ceil(narrowest / min(1.0, np.sqrt(aspect), 1 / np.sqrt(aspect)))),
-                    int(np.ceil(np.sqrt(total))))
+        # the image's shorter side holds the widest chart's narrower side; its pixels hold the charts'
+        start = max(int(np.ceil(narrowest / min(np.sqrt(aspect), 1 / np.sqrt(aspect)))), int(np.ceil(np.sqrt(total))))
         packing = yield from _smallest_side(attempt, start)
         if packing is not None and (best is None or packing.width * packing.height < best.width * best.height):
             best = packing
