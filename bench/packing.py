@@ -8,7 +8,10 @@ Usage::
 Each model's input UV map is packed both ways, in one process, into a ``--resolution`` px square with a
 ``--margin`` px gap: ours fills the image (an explicit resolution), Blender's packer runs as the project used
 it before (CONCAVE shapes, CARDINAL rotation, margin as a fraction of the image). Printed per model: charts,
-seconds and coverage (the fraction of the image the triangles cover) of both, and the ratios ours / Blender's.
+seconds and coverage (the fraction of the image the triangles cover) of both, and the ratios ours / Blender's;
+then ours again at the same pixel count in the shape of ``core.packing.IMAGE_ASPECTS`` that holds the charts
+densest, as the pipeline packs: its size, seconds and coverage, and its texels per unit and time over the
+square's.
 """
 import argparse
 import json
@@ -43,7 +46,7 @@ def measure(path, *, resolution, margin):
     from perceptual_uv.bridge.mesh_io import import_model, read_mesh
     from perceptual_uv.core.charts import uv_topology
     from perceptual_uv.core.cost import uv_area
-    from perceptual_uv.core.packing import pack_charts
+    from perceptual_uv.core.packing import IMAGE_ASPECTS, pack_charts
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
     import_model(path)
@@ -58,12 +61,17 @@ def measure(path, *, resolution, margin):
     ours = pack_charts(uv, face_chart, margin=margin, resolution=resolution)
     ours_seconds = time.perf_counter() - started
     started = time.perf_counter()
+    shaped = pack_charts(uv, face_chart, margin=margin, resolution=resolution, aspects=IMAGE_ASPECTS)
+    shaped_seconds = time.perf_counter() - started
+    started = time.perf_counter()
     packed = blender_pack(objects, source, resolution=resolution, margin=margin)
     blender_seconds = time.perf_counter() - started
     theirs = np.concatenate([loops[a.tri_loops] for loops, a in zip(packed, arrays)])
     return {"model": path.parent.name, "faces": int(len(F)), "charts": int(face_chart.max() + 1),
             "ours_s": ours_seconds, "ours_coverage": ours.coverage,
-            "blender_s": blender_seconds, "blender_coverage": uv_area(theirs)}
+            "blender_s": blender_seconds, "blender_coverage": uv_area(theirs),
+            "shaped_size": list(shaped.size), "shaped_s": shaped_seconds, "shaped_coverage": shaped.coverage,
+            "shaped_density_ratio": shaped.texels_per_unit / ours.texels_per_unit}
 
 
 def main(argv=None):
@@ -88,6 +96,9 @@ def main(argv=None):
               f"coverage {row['ours_coverage']:.3f} | Blender {row['blender_s']:6.2f} s coverage "
               f"{row['blender_coverage']:.3f} | time ratio {row['ours_s'] / row['blender_s']:.2f}, coverage ratio "
               f"{row['ours_coverage'] / row['blender_coverage']:.2f}", flush=True)
+        print(f"{'':<24} shaped {row['shaped_size'][0]} x {row['shaped_size'][1]}: {row['shaped_s']:6.2f} s coverage "
+              f"{row['shaped_coverage']:.3f} | texels per unit over the square's {row['shaped_density_ratio']:.3f}, "
+              f"time ratio {row['shaped_s'] / row['ours_s']:.2f}", flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")
     return 0
