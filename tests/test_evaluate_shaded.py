@@ -127,6 +127,22 @@ def test_a_downscaled_normal_map_is_seen_shaded_not_flat(sphere):
     assert memory["points"][0]["q"] == point["q"]
 
 
+def test_a_map_packed_for_a_rectangle_is_measured_in_images_of_that_shape(sphere):
+    # aspect 2 at a quarter of the texels: the square side 32 sqrt(1/4) = 16 becomes 16 sqrt 2 = 22.6 -> 23 by
+    # 16 / sqrt 2 = 11.3 -> 11, and the 256 px normal map 8 times that; with memory sizing each map's own side
+    # (16 and 128) in that shape: 128 sqrt 2 = 181.02 -> 181 columns, 128^2 // 181 = 90 rows
+    obj, uv, floor = sphere
+    common = dict(reference_uv=uv, costs=(0.25,), screen_pixels=SCREEN, view_count=VIEWS,
+                  reference=floor["reference"], aspect=2.0)
+    texels = evaluate_shaded([obj], uv, **common)
+    (point,) = texels["points"]
+    assert texels["aspect"] == 2.0 and point["resolution"] == [23, 11]
+    assert [m["resolution"] for m in point["maps"]] == [[23, 11], [184, 88]]
+    assert point["relative_cost"] == pytest.approx(23 * 11 / 32 ** 2)
+    memory = evaluate_shaded([obj], uv, sizing="memory", **common)
+    assert [m["resolution"] for m in memory["points"][0]["maps"]] == [[23, 11], [181, 90]]
+
+
 def test_bad_input_is_refused(sphere):
     obj, uv, _ = sphere
     for kwargs, fragment in (({"sizing": "bytes"}, "sizing"), ({"view_count": 0}, "view_count"),
