@@ -1,6 +1,7 @@
 """Whole-mesh evaluation of a UV map (paper Sec. 5.1): q_r at target relative costs, and E_iso.
 
-For each target relative cost ``c_r`` the integer resolution ``r`` closest to it (Eq. 20-21) is chosen, the
+For each target relative cost ``c_r`` the integer resolution ``r`` closest to it (Eq. 20-21) is chosen (an image
+of the shape the candidate was packed for, when that is not a square: :func:`.core.cost.size_for_cost`), the
 ORIGINAL texture is baked through the reference UV map into an ``r x r`` image on the candidate UV map
 (Blender's Cycles bake), and 20 workbench views from the vertices of a regular dodecahedron (flat light,
 texture colour, linear interpolation, stored texture values) of the candidate are compared with the same views
