@@ -170,6 +170,11 @@ def _side(width, height):
     return int(np.sqrt(width * height))
 
 
+def _reported_size(width, height):
+    """An image's size as the results give it: the side of a square, ``[width, height]`` otherwise."""
+    return int(width) if width == height else [int(width), int(height)]
+
+
 def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
                     margin=None, reference_views=None, keep_images=False, keep_views=False, aspect=1.0):
     """q_r at each target relative cost and E_iso of UV map ``uv_name`` (paper Sec. 5.1).
@@ -225,7 +230,7 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         start = time.perf_counter()
         width, height = size_for_cost(uv, target, reference_uv=uv_ref, reference_resolution=r_input, aspect=aspect)
         c = float(relative_cost(uv, (width, height), reference_uv=uv_ref, reference_resolution=r_input))
-        r = width if width == height else [width, height]
+        r = _reported_size(width, height)
         image = bake_base_color(objects, source_uv=reference_uv, target_uv=uv_name, resolution=(width, height),
                                 margin=max(2, _side(width, height) // 128) if margin is None else int(margin),
                                 image_name=f"PUV_eval_{uv_name}_{width}" + ("" if width == height else f"x{height}"))

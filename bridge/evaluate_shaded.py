@@ -40,7 +40,7 @@ from ..core.cost import relative_cost, size_for_cost
 from ..core.packing import image_sizes
 from ..core.evaluation import perceptual_loss_of_views, symmetric_dirichlet
 from .bake import bake_maps
-from .evaluate import _dodecahedron_views, _side, checked_inputs, mesh_arrays, reference_resolution
+from .evaluate import _dodecahedron_views, _reported_size, _side, checked_inputs, mesh_arrays, reference_resolution
 from .map_reads import _reads, bake_kind
 from .material import read_object_materials
 from .material_copy import _raw_bytes, image_side, map_scale, material_copies, memory_resolution, scaled_size
@@ -341,12 +341,6 @@ def _sizes(records, sizing, target, size, r_input, aspect):
     return [scaled_size(size, map_scale(image_side(record.image), float(r_input))) for record in records]
 
 
-def _resolution(size):
-    """A size as the reports give it: the side of a square, ``[width, height]`` otherwise."""
-    width, height = size
-    return int(width) if width == height else [int(width), int(height)]
-
-
 def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
                     sizing="texels", margin=None, reference=None, view_count=None, samples=SAMPLES,
                     keep_images=False, keep_views=False, aspect=1.0):
@@ -442,7 +436,7 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
             for index, (record, result) in enumerate(zip(records, results)):
                 rendered = map_views(objects, record, cameras, uv_name=uv_name, image=result.image,
                                      reads=reads[index], **common)
-                per_map.append(dict(role=record.role, image=record.image.name, resolution=_resolution(sizes[index]),
+                per_map.append(dict(role=record.role, image=record.image.name, resolution=_reported_size(*sizes[index]),
                                     q=float(perceptual_loss_of_views(reference["maps"][index], rendered))))
             # the report's raw bytes (material_copy.map_report): alpha counted when the bake kept it
             before = sum(_raw_bytes(*result.record.image.size, result.alpha, result.record.image.is_float)
@@ -454,7 +448,7 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
             else:
                 for result in results:
                     bpy.data.images.remove(result.image)
-        points.append(dict(target_cost=target, resolution=_resolution(sizes[0]), relative_cost=c,
+        points.append(dict(target_cost=target, resolution=_reported_size(*sizes[0]), relative_cost=c,
                            memory_ratio=after / before if before else None, q=float(q),
                            q_views=[float(x) for x in per_view], maps=per_map,
                            time_s=time.perf_counter() - start))

@@ -18,7 +18,7 @@ from .image_file import image_is_float, image_size
 from .material import material_maps, read_material, read_object_materials, render_uv_name
 
 __all__ = ["COPY_PROPERTY", "MIN_RESOLUTION", "original_materials", "resolve_source_uv", "read_maps", "loss_planes_of",
-           "iter_loss_planes_of", "image_side", "image_stem", "map_resolution", "map_scale", "scaled_size",
+           "iter_loss_planes_of", "image_side", "image_stem", "map_scale", "scaled_size",
            "memory_resolution", "copy_aspects", "slots_aspect",
            "material_copies", "map_report", "file_bytes"]
 
@@ -28,16 +28,20 @@ MAX_RESOLUTION = 16384  # the largest
 COPY_PROPERTY = "perceptual_uv_source"
 
 
+def _copy_slots(objects):
+    """``(object, slot number, slot)`` for each slot of ``objects`` holding a material copy made by a run."""
+    for obj in objects:
+        for number, slot in enumerate(obj.material_slots, start=1):
+            if slot.material is not None and COPY_PROPERTY in slot.material:
+                yield obj, number, slot
+
+
 def _copies_read(objects):
     """{UV map: [(object, slot number, copy)]} for the slots holding a material copy made by an earlier run."""
     found = {}
-    for obj in objects:
-        for index, slot in enumerate(obj.material_slots):
-            material = slot.material
-            if material is None or COPY_PROPERTY not in material:
-                continue
-            for record in material_maps(material, render_uv=render_uv_name(obj.data)):
-                found.setdefault(record.uv_map, []).append((obj, index + 1, material))
+    for obj, number, slot in _copy_slots(objects):
+        for record in material_maps(slot.material, render_uv=render_uv_name(obj.data)):
+            found.setdefault(record.uv_map, []).append((obj, number, slot.material))
     return found
 
 
@@ -56,18 +60,15 @@ def original_materials(objects):
     """
     swapped = []
     try:
-        for obj in objects:
-            for number, slot in enumerate(obj.material_slots, start=1):
-                material = slot.material
-                if material is None or COPY_PROPERTY not in material:
-                    continue
-                original = bpy.data.materials.get(material[COPY_PROPERTY])
-                if original is None:
-                    raise ValueError(f"slot {number} of '{obj.name}' holds '{material.name}', made by an Optimize UVs "
-                                     f"run from '{material[COPY_PROPERTY]}', which is no longer in the file: evaluate "
-                                     "the file the run started from, with the new UV map added")
-                swapped.append((slot, material))
-                slot.material = original
+        for obj, number, slot in list(_copy_slots(objects)):
+            material = slot.material
+            original = bpy.data.materials.get(material[COPY_PROPERTY])
+            if original is None:
+                raise ValueError(f"slot {number} of '{obj.name}' holds '{material.name}', made by an Optimize UVs run "
+                                 f"from '{material[COPY_PROPERTY]}', which is no longer in the file: evaluate the file "
+                                 "the run started from, with the new UV map added")
+            swapped.append((slot, material))
+            slot.material = original
         yield
     finally:
         for slot, material in reversed(swapped):
@@ -84,16 +85,12 @@ def copy_aspects(objects, uv_name):
     dict of str to float
     """
     aspects = {}
-    for obj in objects:
-        for slot in obj.material_slots:
-            material = slot.material
-            if material is None or COPY_PROPERTY not in material:
-                continue
-            maps = [record for record in read_material(material, source_uv=uv_name).maps
-                    if record.image is not None and min(record.image.size) > 0]
-            if maps:
-                image = next((record.image for record in maps if record.role == "base_color"), maps[0].image)
-                aspects.setdefault(material[COPY_PROPERTY], float(image.size[0]) / float(image.size[1]))
+    for _, _, slot in _copy_slots(objects):
+        maps = [record for record in read_material(slot.material, source_uv=uv_name).maps
+                if record.image is not None and min(record.image.size) > 0]
+        if maps:
+            image = next((record.image for record in maps if record.role == "base_color"), maps[0].image)
+            aspects.setdefault(slot.material[COPY_PROPERTY], float(image.size[0]) / float(image.size[1]))
     return aspects
 
 
@@ -238,31 +235,23 @@ def image_side(image):
     return float(np.sqrt(width * height))
 
 
-def map_resolution(resolution, input_side, reference_side, *, role_cost=None, reference_cost=None):
-    """Side of a map's new image: the base colour's relative cost (or ``role_cost``), relative to its own size.
+def map_scale(input_side, reference_side, *, role_cost=None, reference_cost=None):
+    """How many times the base colour's new side a map's new side is: the base colour's relative cost (or
+    ``role_cost``), relative to its own size.
 
     Parameters
     ----------
-    resolution : int
-        Side of the base colour's new image.
     input_side, reference_side : float
         The map's and the base colour's input sides (``sqrt(width * height)``).
     role_cost, reference_cost : float, optional
-        A relative cost set for the map's role, and the base colour's measured one: the side is multiplied by
+        A relative cost set for the map's role, and the base colour's measured one: the scale is multiplied by
         ``sqrt(role_cost / reference_cost)``.
 
     Returns
     -------
-    int
-        ``round(resolution * input_side / reference_side [* sqrt(role_cost / reference_cost)])``, in [8, 16384].
+    float
+        ``input_side / reference_side [* sqrt(role_cost / reference_cost)]`` (:func:`scaled_size` applies it).
     """
-    scale = map_scale(input_side, reference_side, role_cost=role_cost, reference_cost=reference_cost)
-    return int(min(MAX_RESOLUTION, max(MIN_RESOLUTION, round(resolution * scale))))
-
-
-def map_scale(input_side, reference_side, *, role_cost=None, reference_cost=None):
-    """How many times the base colour's new side a map's new side is (:func:`map_resolution` before rounding):
-    ``input_side / reference_side``, times ``sqrt(role_cost / reference_cost)`` for a role's own cost."""
     scale = input_side / reference_side
     if role_cost is not None and reference_cost:
         scale *= np.sqrt(role_cost / reference_cost)

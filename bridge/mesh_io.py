@@ -15,7 +15,7 @@ import bpy
 import numpy as np
 
 from ..core.mesh import MeshArrays, concatenate_meshes
-from ..core.settings import MODEL_SUFFIXES
+from ..core.settings import MODEL_SUFFIXES, suffix_listing
 from .material import base_color_image_node, loss_image_nodes
 
 __all__ = ["import_model", "failures_in_one_line", "read_mesh", "read_image", "load_textured_mesh",
@@ -46,8 +46,7 @@ def import_model(path):
     path = pathlib.Path(path).expanduser().resolve()
     suffix = path.suffix.lower()
     if suffix not in MODEL_SUFFIXES:
-        raise ValueError(f"unsupported model type '{path.suffix}' for {path}; use one of "
-                         f"{', '.join(MODEL_SUFFIXES)}")
+        raise ValueError(f"unsupported model type '{path.suffix}' for {path}; use {suffix_listing(MODEL_SUFFIXES)}")
     if not path.is_file():
         raise ValueError(f"model file not found: {path}")
     check = " (the Khronos glTF validator tells where)" if suffix in (".gltf", ".glb") else ""

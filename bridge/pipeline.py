@@ -22,13 +22,13 @@ from ..core.progress import InThread, RunProgress, format_seconds, relay_stage, 
 from .image_file import image_size, iter_save_or_pack
 from .loss_overlay import write_loss_attributes
 from .material_copy import (COPY_PROPERTY, MIN_RESOLUTION, file_bytes, image_side, image_stem, iter_loss_planes_of,
-                            map_report, map_resolution, map_scale, material_copies, memory_resolution, read_maps,
+                            map_report, map_scale, material_copies, memory_resolution, read_maps,
                             resolve_source_uv, scaled_size, uv_maps_reading)
 from .read_objects import (READ_STEPS, iter_import_stages, iter_read_objects, one_object_per_mesh, source_image,
                            target_problem)
 
 __all__ = ["Progress", "STAGE_SHARES", "PipelineResult", "optimize_objects", "check_objects", "run_to_end",
-           "map_resolution", "COPY_PROPERTY"]
+           "COPY_PROPERTY"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -440,7 +440,7 @@ def _new_images(records, image, size, reference_cost, settings, sides_by_memory=
         else:
             scale = map_scale(image_side(record.image), image_side(image), role_cost=override,
                               reference_cost=reference_cost)
-        map_size = tuple(size) if scale == 1.0 else scaled_size(size, scale)
+        map_size = scaled_size(size, scale)
         sizes.append(map_size)
         margins.append(0 if settings.margin == 0 else max(1, round(settings.margin * map_size[0] / size[0])))
         if number == 0:

@@ -8,6 +8,7 @@ import numpy as np
 
 from ._jit import njit
 from .charts import signed_uv_areas
+from .packing import aspect_size
 
 __all__ = ["uv_area", "texel_reuse", "texel_cost", "relative_cost", "resolution_for_cost", "size_for_cost"]
 
@@ -206,5 +207,5 @@ def size_for_cost(uv, target, *, reference_uv, reference_resolution, aspect=1.0,
         return side, side
     resolution_for_cost(uv, target, reference_uv=reference_uv, reference_resolution=reference_resolution)  # checks
     exact = np.sqrt(target * texel_cost(reference_uv, reference_resolution) / uv_area(uv))
-    return (max(minimum, int(round(exact * np.sqrt(aspect)))), max(minimum, int(round(exact / np.sqrt(aspect)))))
+    return aspect_size(exact, aspect, minimum=minimum)
 

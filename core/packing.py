@@ -28,7 +28,7 @@ from ._jit import njit
 from .charts import signed_uv_areas
 from .progress import run_generator
 
-__all__ = ["IMAGE_ASPECTS", "Packing", "image_sizes", "pack_charts", "iter_pack_charts"]
+__all__ = ["IMAGE_ASPECTS", "Packing", "image_sizes", "aspect_size", "pack_charts", "iter_pack_charts"]
 
 _MAX_SIDE = 16384
 #: Width-to-height ratios a packed image may take when the caller allows other shapes than a square.
@@ -88,6 +88,13 @@ def image_sizes(side, aspects):
         width = max(1, int(round(side * np.sqrt(aspect))))
         sizes.append((width, max(1, side * side // width)))
     return sizes
+
+
+def aspect_size(side, aspect, *, minimum=1):
+    """``(round(side sqrt(aspect)), round(side / sqrt(aspect)))``, each at least ``minimum``: the image of width-to-
+    height ratio ``aspect`` with about the pixels of a ``side x side`` square (unlike :func:`image_sizes`, it may
+    hold a few more)."""
+    return (max(minimum, int(round(side * np.sqrt(aspect)))), max(minimum, int(round(side / np.sqrt(aspect)))))
 
 
 def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None, aspects=(1.0,)):
@@ -245,11 +252,12 @@ def _pack_into(layout, sizes, density):
     reach the far border but for half a margin (every gap grows with it), and the densest result wins, the
     earlier size of equals. The sizes share one density search, so they share its bitmaps too.
     """
-    def attempt(density, every=False):  # generator: the packings in the sizes that fit (the first only if not every)
+    # generator: the packings in ``candidates`` that fit at ``density``, the first one only unless ``every``
+    def attempt(density, candidates=sizes, every=False):
         found = []
         if layout.too_dense(density):
             return found
-        for width, height in sizes:
+        for width, height in candidates:
             packing = yield from layout.place(density, width, height)
             if packing is not None:
                 found.append(packing)
@@ -281,8 +289,9 @@ def _pack_into(layout, sizes, density):
         if finer:
             density, best = candidate, finer
             break
-    if len(sizes) > 1:
-        best = yield from attempt(density, every=True)
+    if len(sizes) > 1:  # the sizes before the first that fits do not fit; those after it may
+        first = best[0]
+        best = [first] + (yield from attempt(density, sizes[sizes.index(first.size) + 1:], every=True))
     return max((_fill(packing, layout.margin) for packing in best), key=lambda packing: packing.texels_per_unit)
 
 
@@ -309,11 +318,8 @@ def _pack_at(layout, density, aspects):
     _, _, total, narrowest = yield from layout.bitmaps(density)
     best = None
     for aspect in aspects:
-        def size(side):
-            return (max(1, int(round(side * np.sqrt(aspect)))), max(1, int(round(side / np.sqrt(aspect)))))
-
         def attempt(side):  # generator: the packing in the image of this side, or None
-            return (yield from layout.place(density, *size(side)))
+            return (yield from layout.place(density, *aspect_size(side, aspect)))
 
         # the image's shorter side holds the widest chart's narrower side; its pixels hold the charts'
         start = max(int(np.ceil(narrowest / min(np.sqrt(aspect), 1 / np.sqrt(aspect)))), int(np.ceil(np.sqrt(total))))

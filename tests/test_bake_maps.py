@@ -19,8 +19,8 @@ bpy = pytest.importorskip("bpy")
 from perceptual_uv.bridge.bake import bake_maps  # noqa: E402
 from perceptual_uv.bridge.material import read_material, read_object_materials  # noqa: E402
 from perceptual_uv.bridge.material_roles import ROLES  # noqa: E402
-from perceptual_uv.bridge.pipeline import (COPY_PROPERTY, map_resolution, optimize_objects,  # noqa: E402
-                                           run_to_end)
+from perceptual_uv.bridge.material_copy import map_scale, scaled_size  # noqa: E402
+from perceptual_uv.bridge.pipeline import COPY_PROPERTY, optimize_objects, run_to_end  # noqa: E402
 from perceptual_uv.core.settings import COST_ROLES, OptimizeSettings, role_cost  # noqa: E402
 
 from conftest import reset_blender_scene  # noqa: E402  (tests/ is on sys.path under pytest)
@@ -354,11 +354,12 @@ def test_a_fold_of_the_surface_bakes_the_normal_the_material_shows():
 # --- sizes ---------------------------------------------------------------------------------------------------
 
 def test_each_map_keeps_its_size_relative_to_its_input():
-    assert map_resolution(300, 1024, 2048) == 150
-    assert map_resolution(300, 2048, 2048) == 300
-    assert map_resolution(20, 64, 2048) == 8  # at least 8 px
+    assert scaled_size((300, 300), map_scale(1024, 2048)) == (150, 150)
+    assert scaled_size((300, 300), map_scale(2048, 2048)) == (300, 300)
+    assert scaled_size((20, 20), map_scale(64, 2048)) == (8, 8)  # at least 8 px
     # an override of 0.075 against a measured 0.3: half the side
-    assert map_resolution(300, 1024, 2048, role_cost=0.075, reference_cost=0.3) == 75
+    assert scaled_size((300, 300), map_scale(1024, 2048, role_cost=0.075, reference_cost=0.3)) == (75, 75)
+    assert scaled_size((300, 200), map_scale(1024, 2048)) == (150, 100)  # a rectangle keeps its shape
     assert role_cost((("normal", 0.2),), "normal_tangent") == 0.2
     assert role_cost((("normal", 0.2), ("normal_tangent", 0.1)), "normal_tangent") == 0.1
     assert role_cost((("normal", 0.2),), "base_color") is None
