@@ -409,7 +409,7 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
     import bpy
 
     from ..bridge.batch import textured_objects
-    from ..bridge.evaluate import evaluate_uv_map, mesh_arrays, reference_resolution, render_views
+    from ..bridge.evaluate import _reported_size, evaluate_uv_map, mesh_arrays, reference_resolution, render_views
     from ..bridge.mesh_io import import_model
     from ..core.cost import texel_cost
     from ..core.evaluation import symmetric_dirichlet
@@ -439,9 +439,9 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
                                    reference_views=reference, aspect=aspect(method))
 
     def aspect(method):
-        """The image shape the method's map was packed for: its report's, or a cached result's (the input's
-        own map: a square)."""
-        return maps.reports.get(method, results.get(method, {})).get("aspect", 1.0)
+        """The image shape the method's map was packed for: its report's, or a cached result's; none for the
+        input's own map (measured in the input texture's shape, each map's own for the downscale)."""
+        return maps.reports.get(method, results.get(method, {})).get("aspect")
 
     maps = UVMaps(objects, source, evaluations=evaluations, epsilon=epsilon, workers=workers,
                    cache=None if triangles is None else (triangles, path.stem), seed=seed)
@@ -501,7 +501,8 @@ def compare_model(path, *, costs, methods, evaluations, screen, epsilon, epsilon
         if entry is not None:
             cache.save(path, "ours", result=results["ours"], times=entry["times"], uv=entry.get("uv"))
     surface_area = float(symmetric_dirichlet(V, F, uv, full=True)[1]["area"])
-    table = dict(model=stem, vertices=len(V), faces=len(F), surface_area=surface_area, input_resolution=r_input,
+    table = dict(model=stem, vertices=len(V), faces=len(F), surface_area=surface_area,
+                 input_resolution=_reported_size(*r_input),
                  input_cost=float(texel_cost(uv, r_input)), epsilon=epsilon, evaluations=evaluations, seed=seed,
                  screen_pixels=screen, t_triangle=times.get("triangle"), t_mesh=times.get("mesh"),
                  pixel_saving=saving, beaten_by=wins(results), failures=failures, reused=sorted(reused),

@@ -39,7 +39,7 @@ from ..core.trianglewise import optimize_triangles
 from ..core.trianglewise_result import MIN_TEXELS, SIGNAL_WEIGHT, STRETCH_WEIGHT_FLOOR, TrianglewiseResult
 from .mesh_io import read_image, read_mesh, write_uv_layer
 from .pack import pack_uv_layer, uv_operator_on_copies
-from .evaluate import mesh_arrays, reference_resolution
+from .evaluate import _side, mesh_arrays, reference_resolution
 from .read_objects import source_image
 from .material_copy import loss_planes_of, read_maps
 
@@ -73,7 +73,7 @@ def _pack(objects, name, face_stack=None):
     evaluation bakes images of that shape)."""
     from ..core.packing import IMAGE_ASPECTS
 
-    packing = pack_uv_layer(objects, name, margin=PACK_MARGIN_PIXELS, resolution=reference_resolution(objects),
+    packing = pack_uv_layer(objects, name, margin=PACK_MARGIN_PIXELS, resolution=_side(*reference_resolution(objects)),
                             face_stack=face_stack, aspects=IMAGE_ASPECTS)
     return {"aspect": packing.width / packing.height}
 

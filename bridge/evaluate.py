@@ -1,7 +1,8 @@
 """Whole-mesh evaluation of a UV map (paper Sec. 5.1): q_r at target relative costs, and E_iso.
 
 For each target relative cost ``c_r`` the integer resolution ``r`` closest to it (Eq. 20-21) is chosen (an image
-of the shape the candidate was packed for, when that is not a square: :func:`.core.cost.size_for_cost`), the
+of the shape the candidate was packed for, when that is not a square: :func:`.core.cost.size_for_cost`; the
+input UV map itself in the input texture's shape), the
 ORIGINAL texture is baked through the reference UV map into an ``r x r`` image on the candidate UV map
 (Blender's Cycles bake), and 20 workbench views from the vertices of a regular dodecahedron (flat light,
 texture colour, linear interpolation, stored texture values) of the candidate are compared with the same views
@@ -26,12 +27,13 @@ from .mesh_io import read_mesh
 from .render import Camera, WorkbenchRenderer
 from .bake import bake_base_color
 
-__all__ = ["reference_resolution", "mesh_arrays", "render_views", "face_id_views", "evaluate_uv_map",
+__all__ = ["reference_resolution", "image_aspect", "mesh_arrays", "render_views", "face_id_views", "evaluate_uv_map",
            "checked_inputs"]
 
 
 def reference_resolution(objects):
-    """The largest side of the base-colour images of ``objects`` (the input texture's resolution ``r_input``).
+    """``(width, height)`` of the base-colour image of ``objects`` with the most pixels: the input texture's
+    resolution ``r_input``, whose texels Eq. 20-21 count (a non-square input counts ``width * height``).
 
     Raises
     ------
@@ -43,11 +45,21 @@ def reference_resolution(objects):
         for slot in obj.material_slots:
             node = base_color_image_node(slot.material)
             if node is not None and node.image is not None:
-                sizes.append(max(int(node.image.size[0]), int(node.image.size[1])))
-    if not sizes or max(sizes) == 0:
+                sizes.append((int(node.image.size[0]), int(node.image.size[1])))
+    largest = max(sizes, key=lambda size: (size[0] * size[1], size), default=(0, 0))
+    if largest[0] * largest[1] == 0:
         raise ValueError("no base-colour image on the objects: the flat evaluation sees the base colour alone; "
                          "--shaded measures every map of the material")
-    return max(sizes)
+    return largest
+
+
+def image_aspect(aspect, uv_name, reference_uv, r_input):
+    """The width-to-height ratio of the images a UV map is measured in: ``aspect`` when given; else the input
+    texture's ``r_input`` for the input UV map itself (its layout fills that shape: at ``c_r = 1`` it is re-baked
+    at the input's own size) and a square for any other map."""
+    if aspect is not None:
+        return float(aspect)
+    return r_input[0] / r_input[1] if uv_name == reference_uv else 1.0
 
 
 def mesh_arrays(objects, uv_name):
@@ -176,7 +188,7 @@ def _reported_size(width, height):
 
 
 def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
-                    margin=None, reference_views=None, keep_images=False, keep_views=False, aspect=1.0):
+                    margin=None, reference_views=None, keep_images=False, keep_views=False, aspect=None):
     """q_r at each target relative cost and E_iso of UV map ``uv_name`` (paper Sec. 5.1).
 
     Parameters
@@ -203,12 +215,14 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     aspect : float, optional
         Width over height of the image ``uv_name`` was packed for (an ``optimize`` result's image may be a
         rectangle, ``core.packing``): each cost's image has that shape (:func:`.core.cost.size_for_cost`), so
-        its texels are square on the surface as the packing laid them out.
+        its texels are square on the surface as the packing laid them out. By default :func:`image_aspect`'s:
+        the input texture's shape for the input UV map, a square for another.
 
     Returns
     -------
     dict
-        ``uv_map``, ``reference_uv``, ``screen_pixels``, ``views`` (20), ``reference_resolution``, ``e_iso``
+        ``uv_map``, ``reference_uv``, ``screen_pixels``, ``views`` (20), ``reference_resolution`` (the input
+        texture's side, ``[width, height]`` when it is not square), ``e_iso``
         (Eq. 24, normalised), ``aspect``, ``points``: one dict per cost with ``target_cost``, ``resolution`` r
         (``[width, height]`` for an image that is not square),
         ``relative_cost`` (the realised c_r), ``q`` (mean GMSD, Eq. 22), ``q_views`` (20 floats), ``time_s``.
@@ -220,6 +234,7 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     """
     objects, costs = checked_inputs(objects, costs, screen_pixels, (uv_name, reference_uv))
     r_input = reference_resolution(objects)
+    aspect = image_aspect(aspect, uv_name, reference_uv, r_input)
     V, F, uv = mesh_arrays(objects, uv_name)
     _, _, uv_ref = mesh_arrays(objects, reference_uv)
     if reference_views is None:
@@ -247,7 +262,7 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         if keep_views:
             points[-1]["rendered"] = views
     result = dict(uv_map=uv_name, reference_uv=reference_uv, screen_pixels=int(screen_pixels),
-                  views=len(reference_views), reference_resolution=r_input, e_iso=e_iso, aspect=float(aspect),
+                  views=len(reference_views), reference_resolution=_reported_size(*r_input), e_iso=e_iso, aspect=aspect,
                   points=points)
     if keep_images:
         result["images"] = images

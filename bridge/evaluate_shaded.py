@@ -40,7 +40,8 @@ from ..core.cost import relative_cost, size_for_cost
 from ..core.packing import image_sizes
 from ..core.evaluation import perceptual_loss_of_views, symmetric_dirichlet
 from .bake import bake_maps
-from .evaluate import _dodecahedron_views, _reported_size, _side, checked_inputs, mesh_arrays, reference_resolution
+from .evaluate import (_dodecahedron_views, _reported_size, _side, checked_inputs, image_aspect, mesh_arrays,
+                       reference_resolution)
 from .map_reads import _reads, bake_kind
 from .material import read_object_materials
 from .material_copy import _raw_bytes, image_side, map_scale, material_copies, memory_resolution, scaled_size
@@ -334,16 +335,19 @@ def shaded_reference(objects, reference_uv, *, screen_pixels=512, view_count=Non
 
 def _sizes(records, sizing, target, size, r_input, aspect):
     """Each map's new ``(width, height)``: the base colour's texel-cost ``size`` scaled by the map's own size
-    (``texels``), or ``round(sqrt(target w h))`` of its own size in the shape ``aspect`` (``memory``: a uniform
-    downscale of every map)."""
+    (``texels``), or ``cost`` times the pixels of its own size (``memory``): in the shape ``aspect``, or without
+    one each map's sides scaled by ``sqrt(cost)`` (a uniform downscale of every map)."""
     if sizing == "memory":
+        if aspect is None:
+            return [scaled_size(tuple(record.image.size), np.sqrt(target)) for record in records]
         return [image_sizes(memory_resolution(tuple(record.image.size), target), (aspect,))[0] for record in records]
-    return [scaled_size(size, map_scale(image_side(record.image), float(r_input))) for record in records]
+    reference_side = np.sqrt(float(r_input[0]) * float(r_input[1]))
+    return [scaled_size(size, map_scale(image_side(record.image), reference_side)) for record in records]
 
 
 def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
                     sizing="texels", margin=None, reference=None, view_count=None, samples=SAMPLES,
-                    keep_images=False, keep_views=False, aspect=1.0):
+                    keep_images=False, keep_views=False, aspect=None):
     """Shaded q_r and q_r per map of UV map ``uv_name`` at each target cost.
 
     Parameters
@@ -361,8 +365,9 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     sizing : {"texels", "memory"}, optional
         ``texels``: the base colour's side is the one whose relative texel cost (Eq. 20-21) is closest to the
         target, as in the flat mode, and every other map keeps its size relative to the base colour's input;
-        ``memory``: every map gets ``round(sqrt(cost w h))`` of its own input (on the input UV map: a uniform
-        downscale, what ``gltfpack -ts`` and ``gltf-transform resize`` do).
+        ``memory``: every map gets ``cost`` times the pixels of its own input, in the shape ``aspect`` or, with
+        none given, its own sides times ``sqrt(cost)`` (on the input UV map: a uniform downscale, what
+        ``gltfpack -ts`` and ``gltf-transform resize`` do).
     margin : int, optional
         Bake margin in pixels of every map; by default ``max(2, side // 128)`` per map.
     reference : dict, optional
@@ -376,7 +381,9 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         in each point).
     aspect : float, optional
         Width over height of the image ``uv_name`` was packed for: every map's image at each cost has that
-        shape (:func:`.evaluate.evaluate_uv_map`).
+        shape (:func:`.evaluate.evaluate_uv_map`). By default :func:`.evaluate.image_aspect`'s for the texel
+        sizing (the input texture's shape for the input UV map, a square for another), each map's own shape for
+        the memory sizing.
 
     Returns
     -------
@@ -401,7 +408,9 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     try:
         r_input = reference_resolution(objects)
     except ValueError:  # no base-colour image: the largest map sets the texel cost's reference
-        r_input = max(max(int(record.image.size[0]), int(record.image.size[1])) for record in records)
+        r_input = max(((int(record.image.size[0]), int(record.image.size[1])) for record in records),
+                      key=lambda size: (size[0] * size[1], size))
+    given_aspect, aspect = aspect, image_aspect(aspect, uv_name, reference_uv, r_input)
     V, F, uv = mesh_arrays(objects, uv_name)
     _, _, uv_ref = mesh_arrays(objects, reference_uv)
     cameras = _dodecahedron_views(V)
@@ -420,7 +429,7 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     for target in costs:
         start = time.perf_counter()
         size = size_for_cost(uv, target, reference_uv=uv_ref, reference_resolution=r_input, aspect=aspect)
-        sizes = _sizes(records, sizing, target, size, r_input, aspect)
+        sizes = _sizes(records, sizing, target, size, r_input, given_aspect)
         c = float(relative_cost(uv, sizes[0] if sizing == "memory" else size, reference_uv=uv_ref,
                                 reference_resolution=r_input))
         results = bake_maps(objects, records, source_uv=reference_uv, target_uv=uv_name, resolutions=sizes,
@@ -455,8 +464,8 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         if keep_views:
             points[-1]["rendered"] = views
     result = dict(mode="shaded", uv_map=uv_name, reference_uv=reference_uv, screen_pixels=int(screen_pixels),
-                  views=len(cameras), samples=int(samples), sizing=sizing, reference_resolution=int(r_input),
-                  aspect=float(aspect),
+                  views=len(cameras), samples=int(samples), sizing=sizing,
+                  reference_resolution=_reported_size(*r_input), aspect=aspect,
                   e_iso=float(symmetric_dirichlet(V, F, uv)),
                   maps=[dict(role=record.role, image=record.image.name, kind=record.kind,
                              input_size=[int(record.image.size[0]), int(record.image.size[1])])

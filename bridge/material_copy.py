@@ -95,13 +95,13 @@ def copy_aspects(objects, uv_name):
 
 
 def slots_aspect(objects, aspects):
-    """The aspect of :func:`copy_aspects` for the first slot of ``objects`` showing one of its originals, else 1
-    (a UV map no run packed: a square)."""
+    """The aspect of :func:`copy_aspects` for the first slot of ``objects`` showing one of its originals, else None
+    (a UV map no run packed: the evaluation's default, ``bridge.evaluate.image_aspect``)."""
     for obj in objects:
         for slot in obj.material_slots:
             if slot.material is not None and slot.material.name in aspects:
                 return aspects[slot.material.name]
-    return 1.0
+    return None
 
 
 def resolve_source_uv(objects, source_uv):

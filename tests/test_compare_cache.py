@@ -170,7 +170,7 @@ def fake_measurements(monkeypatch):
 
     monkeypatch.setattr(evaluate, "evaluate_uv_map", evaluate_uv_map)
     monkeypatch.setattr(evaluate, "render_views", lambda *a, **kw: [np.zeros((8, 8, 4))])
-    monkeypatch.setattr(evaluate, "reference_resolution", lambda objects: 256)
+    monkeypatch.setattr(evaluate, "reference_resolution", lambda objects: (256, 256))
     monkeypatch.setattr(compare, "plot_curves", lambda *a, **kw: None)
     monkeypatch.setattr(compare, "render_crops", lambda *a, **kw: None)
     return calls, state

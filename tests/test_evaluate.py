@@ -190,3 +190,28 @@ def test_an_optimize_result_packed_for_a_rectangle_is_measured_in_images_of_that
     side = size_for_cost(new, 0.5, reference_uv=source, reference_resolution=1024)[0]
     assert outputs["plain"]["points"][0]["resolution"] == side
 
+
+
+def test_a_non_square_input_is_measured_in_its_own_shape():
+    # A 64 x 32 texture: its UV map's layout fills that shape. Eq. 20 counts 64 * 32 texels per unit of UV area,
+    # so c_r = 1 is the input's own size, and c_r = 0.5 the 2:1 image with about half the texels: a square's side
+    # sqrt(0.5 * 64 * 32) = 32, in that shape round(32 sqrt 2) = 45 by round(32 / sqrt 2) = 23, realised c_r
+    # 45 * 23 / 2048. A square with the input's texel count (45 x 45, the side of 2048 pixels) draws each texel
+    # 1.4 times as wide and 0.7 times as tall as the input's: measured 3.0e-2 against 2.8e-4 in the input's shape.
+    from conftest import reset_blender_scene
+    from test_robustness import textured_grid
+
+    reset_blender_scene()
+    obj = textured_grid("wide", image_size=(64, 32))
+    own = evaluate_uv_map([obj], "UVMap", reference_uv="UVMap", costs=(1.0, 0.5), screen_pixels=64)
+    assert own["reference_resolution"] == [64, 32] and own["aspect"] == 2.0
+    same, half = own["points"]
+    assert same["resolution"] == [64, 32] and same["relative_cost"] == pytest.approx(1.0)
+    assert half["resolution"] == [45, 23] and half["relative_cost"] == pytest.approx(45 * 23 / 2048)
+    square = evaluate_uv_map([obj], "UVMap", reference_uv="UVMap", costs=(1.0,), screen_pixels=64, aspect=1.0)
+    assert square["points"][0]["resolution"] == 45
+    assert same["q"] < 0.1 * square["points"][0]["q"]
+    # another UV map: no run says what it was laid out for, so a square
+    obj.data.uv_layers.new(name="Other")
+    other = evaluate_uv_map([obj], "Other", reference_uv="UVMap", costs=(1.0,), screen_pixels=64)
+    assert other["aspect"] == 1.0 and other["points"][0]["resolution"] == 45

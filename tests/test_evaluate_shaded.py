@@ -214,3 +214,31 @@ def test_a_map_view_shows_slots_that_do_not_read_the_map_in_flat_grey():
     values = np.round(view[..., 0][view[..., 3] > 0.999].astype(np.float64), 2)
     assert set(np.unique(values)) == {0.5, 0.6}
     assert list(obj.data.materials) == [obj.data.materials[0], bpy.data.materials["no_images"]]
+
+
+def test_a_non_square_input_is_downscaled_in_each_maps_own_shape():
+    # A 64 x 32 base colour and a 128 x 128 roughness map on the input UV map. The memory sizing (the uniform
+    # downscale) scales each map's sides by sqrt(0.25): 32 x 16 and 64 x 64. The texel sizing gives the base
+    # colour the input's 2:1 shape at a quarter of its 2048 texels (side sqrt(512) = 22.63, round(22.63 sqrt 2)
+    # = 32 by round(22.63 / sqrt 2) = 16) and the roughness map the same shape scaled by its side over the base
+    # colour's, 128 / sqrt(2048) = 2.83: round(90.51) = 91 by round(45.25) = 45.
+    from conftest import reset_blender_scene
+    from test_robustness import textured_grid
+
+    reset_blender_scene()
+    obj = textured_grid("wide", image_size=(64, 32))
+    tree = obj.material_slots[0].material.node_tree
+    rough = tree.nodes.new("ShaderNodeTexImage")
+    rough.image = _image("wide_roughness", np.random.default_rng(0).random((128, 128, 3)).astype(np.float32),
+                         data=True)
+    tree.links.new(rough.outputs["Color"], tree.nodes["Principled BSDF"].inputs["Roughness"])
+    common = dict(reference_uv="UVMap", costs=(0.25,), screen_pixels=SCREEN, view_count=VIEWS)
+    memory = evaluate_shaded([obj], "UVMap", sizing="memory", **common)
+    assert memory["reference_resolution"] == [64, 32] and memory["aspect"] == 2.0
+    (point,) = memory["points"]
+    assert [m["resolution"] for m in point["maps"]] == [[32, 16], 64]
+    assert point["memory_ratio"] == pytest.approx(0.25)
+    texels = evaluate_shaded([obj], "UVMap", **common)
+    (point,) = texels["points"]
+    assert [m["resolution"] for m in point["maps"]] == [[32, 16], [91, 45]]
+    assert point["relative_cost"] == pytest.approx(32 * 16 / 2048)
