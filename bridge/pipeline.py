@@ -237,6 +237,9 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         notes += map_notes
         mesh, texture, faces = validated.mesh, validated.texture, validated.faces
         V, F, uv_in = mesh.V, mesh.F, mesh.uv
+        yield step("read", 4, READ_STEPS, "Finding the UV islands")
+        topology = uv_topology(F, uv_in)
+        _check_islands_fit(uv_in, topology.face_chart, records[0], settings)  # refused here, before the run
         # Every map the loss sees, the loss image's first.
         planes = yield from relay_stage(iter_loss_planes_of(records, texture), "read", "Building the loss's planes",
                                         time.perf_counter(), step)
@@ -270,7 +273,6 @@ def optimize_objects(objects, settings, *, source_uv=None, output_dir=None):
         clock = time.perf_counter()
         finding = step("mesh", 0, 1, "Finding the UV islands that share texels")
         yield finding
-        topology = uv_topology(F, uv_in)
         input_charts = topology.face_chart
         stacks = None
         if settings.keep_stacks:  # in a thread: about 0.2 s on sofa_03's 166 islands
@@ -479,6 +481,32 @@ def _memory_side(record, settings):
 
     override = role_cost(settings.role_costs, record.role)
     return memory_resolution(image_size(record.image), settings.target_cost if override is None else override)
+
+
+def _check_islands_fit(uv_in, face_chart, record, settings):
+    """Refuse (ValueError), before the run, a run whose islands fit no image the packing may take at any scale:
+    more of them than :func:`core.packing.island_capacity` allows in each size :func:`_pack` tries with the side
+    set by the image memory or the explicit resolution (the texel cost grows the image as the packing needs)."""
+    from ..core.packing import IMAGE_ASPECTS, image_sizes, island_capacity
+    from ..core.stacks import packing_islands, stacked_charts, stacked_faces
+
+    if settings.resolution is not None:
+        sizes = [(settings.resolution, settings.resolution)]
+    elif settings.cost_measure == "memory":
+        side = _memory_side(record, settings)
+        aspects = (1.0,) if settings.square_images else IMAGE_ASPECTS
+        sizes = [size for size in image_sizes(side, aspects) if min(size) >= MIN_RESOLUTION] + [(side, side)]
+    else:
+        return
+    width, height = max(sizes, key=lambda size: island_capacity(*size, settings.margin))
+    capacity = island_capacity(width, height, settings.margin)
+    count = int(face_chart.max()) + 1
+    if count > capacity and settings.keep_stacks:  # the islands that share texels pack as one
+        count = int(packing_islands(face_chart, stacked_faces(face_chart, stacked_charts(uv_in, face_chart))).max()) + 1
+    if count > capacity:
+        raise ValueError(f"the {count} UV islands do not fit a {width} x {height} px image with a {settings.margin} "
+                         f"px margin at any scale (it holds {capacity}): lower the margin or give the image more "
+                         "pixels (a higher cost or resolution)")
 
 
 def _pack(uv_in, uv_fit, face_chart, input_size, settings, step, *, resolution=None):

@@ -28,7 +28,8 @@ from ._jit import njit
 from .charts import signed_uv_areas
 from .progress import run_generator
 
-__all__ = ["IMAGE_ASPECTS", "Packing", "image_sizes", "aspect_size", "pack_charts", "iter_pack_charts"]
+__all__ = ["IMAGE_ASPECTS", "Packing", "image_sizes", "aspect_size", "island_capacity", "pack_charts",
+           "iter_pack_charts"]
 
 _MAX_SIDE = 16384
 #: Width-to-height ratios a packed image may take when the caller allows other shapes than a square.
@@ -95,6 +96,29 @@ def aspect_size(side, aspect, *, minimum=1):
     height ratio ``aspect`` with about the pixels of a ``side x side`` square (unlike :func:`image_sizes`, it may
     hold a few more)."""
     return (max(minimum, int(round(side * np.sqrt(aspect)))), max(minimum, int(round(side / np.sqrt(aspect)))))
+
+
+def island_capacity(width, height, margin):
+    """The most islands a ``width x height`` image holds with ``margin``, however small they are packed.
+
+    Every island's bitmap holds at least one pixel grown by ``g = (margin + 1) // 2`` on every side, a square of
+    side ``s = 1 + 2 g``, and the grown bitmaps of two islands do not overlap (:func:`iter_pack_charts`); at most
+    ``floor(width / s) * floor(height / s)`` disjoint ``s x s`` squares fit in the image. More islands than that
+    cannot be packed at any density.
+
+    Parameters
+    ----------
+    width, height : int
+        The image's size in pixels.
+    margin : int
+        Smallest gap between islands, in pixels.
+
+    Returns
+    -------
+    int
+    """
+    side = 1 + 2 * ((int(margin) + 1) // 2)
+    return (int(width) // side) * (int(height) // side)
 
 
 def pack_charts(uv, face_chart, *, margin, texels_per_unit=None, resolution=None, aspects=(1.0,)):

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from perceptual_uv.core.packing import iter_pack_charts, pack_charts
+from perceptual_uv.core.packing import iter_pack_charts, island_capacity, pack_charts
 
 QUARTER_TURNS = [np.eye(2), np.array([[0, -1], [1, 0]]), -np.eye(2), np.array([[0, 1], [-1, 0]])]
 
@@ -292,3 +292,25 @@ def test_aspects_outside_sixteen_to_one_are_refused(aspects):
     uv, face_chart = charts_of([(0, 0, 1, 1)])
     with pytest.raises(ValueError, match="aspects"):
         pack_charts(uv, face_chart, margin=0, texels_per_unit=8, aspects=aspects)
+
+
+def test_island_capacity_is_the_most_islands_a_packing_holds():
+    # An island's bitmap is at least one pixel grown by (margin + 1) // 2 on each side: 5 x 5 px with a 4 px
+    # margin, 3 x 3 with 1 or 2, 1 x 1 with none; floor(w / s) * floor(h / s) of them fit.
+    assert island_capacity(8, 8, 4) == 1
+    assert island_capacity(11, 5, 4) == 2
+    assert island_capacity(10, 10, 4) == 4
+    assert island_capacity(9, 9, 1) == island_capacity(9, 9, 2) == 9
+    assert island_capacity(9, 9, 3) == 1
+    assert island_capacity(7, 3, 0) == 21
+    # tight on tiny islands: as many as it says pack, one more does not, whatever the scale
+    base = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    for margin, side in ((0, 3), (1, 6), (4, 10)):
+        capacity = island_capacity(side, side, margin)
+        for count in (capacity, capacity + 1):
+            uv = np.stack([base + (3.0 * i, 0.0) for i in range(count)])
+            if count == capacity:
+                assert pack_charts(uv, np.arange(count), margin=margin, resolution=side).size == (side, side)
+            else:
+                with pytest.raises(ValueError, match="do not fit"):
+                    pack_charts(uv, np.arange(count), margin=margin, resolution=side)

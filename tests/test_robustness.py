@@ -451,6 +451,28 @@ def test_tiny_image_gets_a_sane_resolution():
     assert 8 <= min(result.report["resolution"]) and max(result.report["resolution"]) <= 32
 
 
+def test_islands_that_fit_no_image_at_any_scale_are_refused_before_the_run():
+    # Two grids, two islands on separate texels of one 8 x 8 texture: at image memory 0.3 the new image is the
+    # smallest side, 8 (every other shape is narrower than 8), and with the 4 px margin an island's bitmap is at
+    # least 5 x 5: one fits, two do not, at any scale. The run is refused before the triangle-wise stage.
+    reset_blender_scene()
+    first = textured_grid("first", image_size=(8, 8), uv_scale=0.4, uv_offset=0.05)
+    second = textured_grid("second", uv_scale=0.4, uv_offset=0.55, location=(2.0, 0.0, 0.0))
+    second.material_slots[0].material = first.material_slots[0].material
+    objects = [first, second]
+    before = state(objects)
+    stages = []
+    with pytest.raises(ValueError, match=r"the 2 UV islands do not fit a 8 x 8 px image with a 4 px margin at any "
+                                         r"scale \(it holds 1\): lower the margin") as error:
+        for progress in optimize_objects(objects, SETTINGS):
+            stages.append(progress.stage)
+    assert "read" in stages and "triangle" not in stages
+    assert state(objects) == before and "\n" not in str(error.value)
+    # with a 1 px margin (bitmaps of 3 x 3 at least) both fit
+    result = optimized(objects, dataclasses.replace(SETTINGS, margin=1))
+    assert list(result.image.size) == result.report["resolution"] == [8, 8]
+
+
 def test_part_of_the_uv_map_collapsed_to_a_point():
     # As on parts of some glTF assets: a few faces' UVs all at one point, the rest unwrapped.
     obj = textured_grid("partial", k=4)
