@@ -483,19 +483,29 @@ def _memory_side(record, settings):
     return memory_resolution(image_size(record.image), settings.target_cost if override is None else override)
 
 
+def _memory_aspects(side, settings):
+    """The shapes the new image may take with the side the image memory gives: those of
+    :data:`.core.packing.IMAGE_ASPECTS` (a square alone with ``settings.square_images``) whose image at ``side``
+    has at least ``MIN_RESOLUTION`` pixels on each side; the square always (``side`` is at least that)."""
+    from ..core.packing import IMAGE_ASPECTS, image_sizes
+
+    aspects = (1.0,) if settings.square_images else IMAGE_ASPECTS
+    return tuple(aspect for aspect, size in zip(aspects, image_sizes(side, aspects))
+                 if aspect == 1.0 or min(size) >= MIN_RESOLUTION)
+
+
 def _check_islands_fit(uv_in, face_chart, record, settings):
     """Refuse (ValueError), before the run, a run whose islands fit no image the packing may take at any scale:
     more of them than :func:`core.packing.island_capacity` allows in each size :func:`_pack` tries with the side
     set by the image memory or the explicit resolution (the texel cost grows the image as the packing needs)."""
-    from ..core.packing import IMAGE_ASPECTS, image_sizes, island_capacity
+    from ..core.packing import image_sizes, island_capacity
     from ..core.stacks import packing_islands, stacked_charts, stacked_faces
 
     if settings.resolution is not None:
         sizes = [(settings.resolution, settings.resolution)]
     elif settings.cost_measure == "memory":
         side = _memory_side(record, settings)
-        aspects = (1.0,) if settings.square_images else IMAGE_ASPECTS
-        sizes = [size for size in image_sizes(side, aspects) if min(size) >= MIN_RESOLUTION] + [(side, side)]
+        sizes = image_sizes(side, _memory_aspects(side, settings))
     else:
         return
     width, height = max(sizes, key=lambda size: island_capacity(*size, settings.margin))
@@ -533,12 +543,9 @@ def _pack(uv_in, uv_fit, face_chart, input_size, settings, step, *, resolution=N
     square = (1.0,)
     if settings.resolution is not None:
         return (yield from packed(square, resolution=settings.resolution))
-    aspects = square if settings.square_images else IMAGE_ASPECTS
     if resolution is not None:
-        packing = yield from packed(aspects, resolution=resolution)
-        if min(packing.size) < MIN_RESOLUTION:  # a rectangle of a few pixels: the square keeps both sides
-            packing = yield from packed(square, resolution=resolution)
-        return packing
+        return (yield from packed(_memory_aspects(resolution, settings), resolution=resolution))
+    aspects = square if settings.square_images else IMAGE_ASPECTS
     reference = texel_cost.texel_cost(uv_in, input_size)
     density = np.sqrt(settings.target_cost * reference / texel_cost.uv_area(uv_fit))
     packing = yield from packed(aspects, texels_per_unit=density)

@@ -451,6 +451,17 @@ def test_tiny_image_gets_a_sane_resolution():
     assert 8 <= min(result.report["resolution"]) and max(result.report["resolution"]) <= 32
 
 
+def test_the_image_memory_side_takes_no_shape_narrower_than_the_smallest_image():
+    # image_sizes: width round(side sqrt(a)), height side^2 // width. At side 8 every rectangle has a side below 8
+    # (4:3 is 9 x 7, 1:2 is 6 x 10); at 11 only 2:1 does (16 x 7; 1:2 is 8 x 15); at 12 none (2:1 is 17 x 8).
+    from perceptual_uv.core.packing import IMAGE_ASPECTS
+
+    assert pipeline._memory_aspects(8, SETTINGS) == (1.0,)
+    assert pipeline._memory_aspects(11, SETTINGS) == tuple(a for a in IMAGE_ASPECTS if a != 2.0)
+    assert pipeline._memory_aspects(12, SETTINGS) == IMAGE_ASPECTS
+    assert pipeline._memory_aspects(1024, dataclasses.replace(SETTINGS, square_images=True)) == (1.0,)
+
+
 def test_islands_that_fit_no_image_at_any_scale_are_refused_before_the_run():
     # Two grids, two islands on separate texels of one 8 x 8 texture: at image memory 0.3 the new image is the
     # smallest side, 8 (every other shape is narrower than 8), and with the 4 px margin an island's bitmap is at
