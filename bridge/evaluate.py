@@ -46,11 +46,16 @@ def reference_resolution(objects):
             node = base_color_image_node(slot.material)
             if node is not None and node.image is not None:
                 sizes.append((int(node.image.size[0]), int(node.image.size[1])))
-    largest = max(sizes, key=lambda size: (size[0] * size[1], size), default=(0, 0))
+    largest = _largest_size(sizes)
     if largest[0] * largest[1] == 0:
         raise ValueError("no base-colour image on the objects: the flat evaluation sees the base colour alone; "
                          "--shaded measures every map of the material")
     return largest
+
+
+def _largest_size(sizes):
+    """The ``(width, height)`` of ``sizes`` with the most pixels (the larger pair of equals); ``(0, 0)`` for none."""
+    return max(sizes, key=lambda size: (size[0] * size[1], size), default=(0, 0))
 
 
 def image_aspect(aspect, uv_name, reference_uv, r_input):
@@ -187,6 +192,11 @@ def _reported_size(width, height):
     return int(width) if width == height else [int(width), int(height)]
 
 
+def _size_label(width, height):
+    """An image's size in a name: ``"W"`` for a square, ``"WxH"`` otherwise."""
+    return f"{width}" if width == height else f"{width}x{height}"
+
+
 def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5), screen_pixels=512,
                     margin=None, reference_views=None, keep_images=False, keep_views=False, aspect=None):
     """q_r at each target relative cost and E_iso of UV map ``uv_name`` (paper Sec. 5.1).
@@ -248,7 +258,7 @@ def evaluate_uv_map(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
         r = _reported_size(width, height)
         image = bake_base_color(objects, source_uv=reference_uv, target_uv=uv_name, resolution=(width, height),
                                 margin=max(2, _side(width, height) // 128) if margin is None else int(margin),
-                                image_name=f"PUV_eval_{uv_name}_{width}" + ("" if width == height else f"x{height}"))
+                                image_name=f"PUV_eval_{uv_name}_{_size_label(width, height)}")
         try:
             views = render_views(objects, uv_name=uv_name, image=image, screen_pixels=screen_pixels)
         finally:

@@ -40,8 +40,8 @@ from ..core.cost import relative_cost, size_for_cost
 from ..core.packing import image_sizes
 from ..core.evaluation import perceptual_loss_of_views, symmetric_dirichlet
 from .bake import bake_maps
-from .evaluate import (_dodecahedron_views, _reported_size, _side, checked_inputs, image_aspect, mesh_arrays,
-                       reference_resolution)
+from .evaluate import (_dodecahedron_views, _largest_size, _reported_size, _side, _size_label, checked_inputs,
+                       image_aspect, mesh_arrays, reference_resolution)
 from .map_reads import _reads, bake_kind
 from .material import read_object_materials
 from .material_copy import _raw_bytes, image_side, map_scale, material_copies, memory_resolution, scaled_size
@@ -408,8 +408,7 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
     try:
         r_input = reference_resolution(objects)
     except ValueError:  # no base-colour image: the largest map sets the texel cost's reference
-        r_input = max(((int(record.image.size[0]), int(record.image.size[1])) for record in records),
-                      key=lambda size: (size[0] * size[1], size))
+        r_input = _largest_size([(int(record.image.size[0]), int(record.image.size[1])) for record in records])
     given_aspect, aspect = aspect, image_aspect(aspect, uv_name, reference_uv, r_input)
     V, F, uv = mesh_arrays(objects, uv_name)
     _, _, uv_ref = mesh_arrays(objects, reference_uv)
@@ -434,7 +433,7 @@ def evaluate_shaded(objects, uv_name, *, reference_uv, costs=(0.1, 0.2, 0.3, 0.5
                                 reference_resolution=r_input))
         results = bake_maps(objects, records, source_uv=reference_uv, target_uv=uv_name, resolutions=sizes,
                             margin=[max(2, _side(*s) // 128) if margin is None else int(margin) for s in sizes],
-                            names=[f"PUV_eval_{uv_name}_{record.role}_{s[0]}" + ("" if s[0] == s[1] else f"x{s[1]}")
+                            names=[f"PUV_eval_{uv_name}_{record.role}_{_size_label(*s)}"
                                    for record, s in zip(records, sizes)])
         try:
             baked = {(result.record.image.as_pointer(), result.kind): result.image for result in results}
