@@ -11,13 +11,14 @@ job that ``optimize`` and the modal operator run (every texture of the file, one
 and revision: the stage times of the report (``read`` is everything before the triangle-wise stage), the
 triangle-wise stage in ms per optimized face, the longest single step of the generator and the stage it belongs to
 (the interface freezes for as long as one step takes), and the peak memory of the run's whole process tree (the
-pipeline process and its worker or bake processes, sampled every 0.1 s): the sum of their resident sizes, and the
-sum of their proportional set sizes, which counts the pages they share (the workers' shared arrays) once, with the
-stage it came in and how it splits between the pipeline process and the others; below each row, the five longest
-steps with the stage and message of the progress report they follow, and how many cores were busy on average during
-each stage (the CPU time of the whole process tree over the stage's wall time: where it stays below the cores, a
-stage waits on one process). ``--json`` also holds each stage's peak (``peak_by_stage``, proportional) and CPU and
-wall seconds (``cpu_by_stage``).
+pipeline process and its worker or bake processes): the sum of their resident sizes, sampled every 0.1 s, and the
+sum of their proportional set sizes, which counts the pages they share (the workers' shared arrays) once, sampled
+every second and once per stage (a peak shorter than that may be missed), with the stage it came in and how it
+splits between the pipeline process and the others; below each row, the five longest steps with the stage and
+message of the progress report they follow, and how many cores were busy on average during each stage (the CPU time
+of the whole process tree over the stage's wall time: where it stays below the cores, a stage waits on one process),
+and the share of a core the sampler itself took. ``--json`` also holds each stage's peak (``peak_by_stage``,
+proportional) and CPU and wall seconds (``cpu_by_stage``).
 
 ``--operator`` runs with the settings the modal operator adds to the defaults (``bake_in_background``), the way
 "Optimize UVs" drives the pipeline in the interface; ``--set NAME=VALUE`` sets any field of
@@ -43,6 +44,11 @@ import time
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 WARMUP_MODEL = REPO / "tests" / "data" / "spot" / "spot_triangulated.obj"
+# How often the sampler reads the proportional set sizes: /proc/PID/smaps_rollup walks a process's page tables
+# (7-22 ms per process of a run), so reading it every 0.1 s would take about a sixth of a core from the run it
+# measures, whose workers fill the cores. The resident sizes (/proc/PID/statm, a counter) are read every 0.1 s.
+PROPORTIONAL_SECONDS = 1.0
+
 STAGES = ("read", "triangle", "mesh", "pack", "bake", "total")
 
 
@@ -148,12 +154,15 @@ def _children():
     return tree
 
 
-def _process_memory(pid, page):
+def _process_memory(pid, page, proportional=True):
     """``(resident, proportional)`` bytes of one process. The proportional set size (``Pss`` of
     /proc/PID/smaps_rollup) splits each shared page between the processes that map it, so the sum over a process
-    tree counts the workers' shared arrays once; where the kernel has no smaps_rollup it is the resident size."""
+    tree counts the workers' shared arrays once; where the kernel has no smaps_rollup, or without
+    ``proportional``, it is the resident size."""
     with open(f"/proc/{pid}/statm") as statm:
         resident = int(statm.read().split()[1]) * page
+    if not proportional:
+        return resident, resident
     try:
         with open(f"/proc/{pid}/smaps_rollup") as rollup:
             for line in rollup:
@@ -174,15 +183,16 @@ def _tree_pids(pid, tree):
     return pids
 
 
-def tree_memory(pid, tree=None):
+def tree_memory(pid, tree=None, *, proportional=True):
     """Memory of ``pid`` and of its descendants: ``(own, descendants, live descendants)``, ``own`` and
     ``descendants`` each ``(resident, proportional)`` bytes (zeros once it is gone). ``tree`` as from
-    :func:`_children`, read now by default."""
+    :func:`_children`, read now by default; without ``proportional`` the proportional sizes are the resident
+    ones (reading them walks each process's page tables: milliseconds per process)."""
     own, others, count = (0, 0), (0, 0), 0
     page = os.sysconf("SC_PAGE_SIZE")
     for current in _tree_pids(pid, _children() if tree is None else tree):
         try:
-            memory = _process_memory(current, page)
+            memory = _process_memory(current, page, proportional)
         except OSError:
             memory = None
         if current == pid:
@@ -232,9 +242,15 @@ def measure(tree, path, settings_options):
     # stage -> [CPU seconds of the whole tree, wall seconds], from the ticks each process used between samples (a
     # process that ends between two samples loses at most its last 0.1 s)
     busy, last_ticks, last_sample, tick = {}, {}, time.perf_counter(), os.sysconf("SC_CLK_TCK")
+    # The proportional sizes at most every PROPORTIONAL_SECONDS and once in every stage (see the constant)
+    proportional_due, proportional_stage = last_sample, None
+    sampler_cpu = time.process_time()
     while child.poll() is None:
         tree = _children()  # one walk of /proc per sample, for the memory and the CPU time
-        own, others, count = tree_memory(child.pid, tree)
+        proportional = last_sample >= proportional_due or stage != proportional_stage
+        own, others, count = tree_memory(child.pid, tree, proportional=proportional)
+        if proportional:
+            proportional_due, proportional_stage = last_sample + PROPORTIONAL_SECONDS, stage
         ticks, now = tree_cpu_ticks(child.pid, tree), time.perf_counter()
         entry = busy.setdefault(stage, [0.0, 0.0])
         entry[0] += sum(max(value - last_ticks.get(pid, 0), 0) for pid, value in ticks.items()) / tick
@@ -243,9 +259,10 @@ def measure(tree, path, settings_options):
         with contextlib.suppress(OSError):
             stage = stage_file.read_text().strip() or stage
         peak_resident = max(peak_resident, own[0] + others[0])
-        if own[1] + others[1] > peaks.get(stage, (-1,))[0]:
+        if proportional and own[1] + others[1] > peaks.get(stage, (-1,))[0]:
             peaks[stage] = (own[1] + others[1], own[1], others[1], count)
         time.sleep(0.1)
+    sampler_cpu = time.process_time() - sampler_cpu
     errors = child.stderr.read()
     stage_file.unlink(missing_ok=True)
     if child.returncode != 0:
@@ -256,6 +273,7 @@ def measure(tree, path, settings_options):
     result["peak_stage"] = max(peaks, key=lambda name: peaks[name][0]) if peaks else "none"
     result["peak_pss_gib"] = peaks[result["peak_stage"]][0] / 2 ** 30 if peaks else 0.0
     result["peak_rss_gib"] = peak_resident / 2 ** 30
+    result["sampler_cores"] = sampler_cpu / max(sum(wall for _, wall in busy.values()), 1e-9)
     result["cpu_by_stage"] = {name: {"cpu_s": cpu, "wall_s": wall, "cores_busy": cpu / wall if wall else 0.0}
                               for name, (cpu, wall) in busy.items()}
     return result
@@ -312,7 +330,10 @@ def _busy_row(result):
     stages = result.get("cpu_by_stage", {})
     parts = [f"{name} {stages[name]['cores_busy']:.2f}" for name in ("read", "triangle", "mesh", "pack", "bake")
              if name in stages and stages[name]["wall_s"] > 0.5]
-    return f"      cores busy (of {os.cpu_count()}): " + ", ".join(parts) if parts else ""
+    if not parts:
+        return ""
+    sampler = f" (this benchmark's sampler: {result['sampler_cores']:.3f})" if "sampler_cores" in result else ""
+    return f"      cores busy (of {os.cpu_count()}): " + ", ".join(parts) + sampler
 
 
 def _ratio_row(result, reference):

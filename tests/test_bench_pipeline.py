@@ -4,7 +4,7 @@ import subprocess
 import sys
 import time
 
-from perceptual_uv.bench.pipeline import tree_cpu_ticks
+from perceptual_uv.bench.pipeline import tree_cpu_ticks, tree_memory
 
 BUSY_SECONDS = 0.5
 # A child that spins until its own process_time() reaches BUSY_SECONDS, says so, then sleeps until killed.
@@ -30,3 +30,17 @@ def test_tree_cpu_ticks_counts_a_busy_child_and_not_a_sleeping_one():
         child.kill()
         child.wait()
     assert child.pid not in tree_cpu_ticks(os.getpid())
+
+
+def test_tree_memory_reads_the_proportional_size_only_when_asked():
+    page = os.sysconf("SC_PAGE_SIZE")
+    own, _, _ = tree_memory(os.getpid(), proportional=False)
+    assert own[0] == own[1]  # both the resident size
+    with open(f"/proc/{os.getpid()}/statm") as statm:
+        resident = int(statm.read().split()[1]) * page
+    assert abs(own[0] - resident) <= 64 * page  # read a moment apart
+    own, _, _ = tree_memory(os.getpid())
+    if os.path.exists(f"/proc/{os.getpid()}/smaps_rollup"):
+        # The proportional size splits shared pages between their processes: never above the resident size (the
+        # two are read a moment apart).
+        assert 0 < own[1] <= own[0] + 64 * page
