@@ -11,14 +11,14 @@ job that ``optimize`` and the modal operator run (every texture of the file, one
 and revision: the stage times of the report (``read`` is everything before the triangle-wise stage), the
 triangle-wise stage in ms per optimized face, the longest single step of the generator and the stage it belongs to
 (the interface freezes for as long as one step takes), and the peak memory of the run's whole process tree (the
-pipeline process and its worker or bake processes): the sum of their resident sizes, sampled every 0.1 s, and the
-sum of their proportional set sizes, which counts the pages they share (the workers' shared arrays) once, sampled
-every second and once per stage (a peak shorter than that may be missed), with the stage it came in and how it
-splits between the pipeline process and the others; below each row, the five longest steps with the stage and
-message of the progress report they follow, and how many cores were busy on average during each stage (the CPU time
-of the whole process tree over the stage's wall time: where it stays below the cores, a stage waits on one process),
-and the share of a core the sampler itself took. ``--json`` also holds each stage's peak (``peak_by_stage``,
-proportional) and CPU and wall seconds (``cpu_by_stage``).
+pipeline process and its worker or bake processes): the sum of their resident sizes, sampled every 0.1 s (a new
+process found within a second), and the sum of their proportional set sizes, which counts the pages they share (the
+workers' shared arrays) once, sampled every second and once per stage (a peak shorter than that may be missed), with
+the stage it came in and how it splits between the pipeline process and the others; below each row, the five longest
+steps with the stage and message of the progress report they follow, and how many cores were busy on average during
+each stage (the CPU time of the whole process tree over the stage's wall time: where it stays below the cores, a
+stage waits on one process), and the share of a core the sampler itself took. ``--json`` also holds each stage's
+peak (``peak_by_stage``, proportional) and CPU and wall seconds (``cpu_by_stage``).
 
 ``--operator`` runs with the settings the modal operator adds to the defaults (``bake_in_background``), the way
 "Optimize UVs" drives the pipeline in the interface; ``--set NAME=VALUE`` sets any field of
@@ -44,9 +44,10 @@ import time
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 WARMUP_MODEL = REPO / "tests" / "data" / "spot" / "spot_triangulated.obj"
-# How often the sampler reads the proportional set sizes: /proc/PID/smaps_rollup walks a process's page tables
-# (7-22 ms per process of a run), so reading it every 0.1 s would take about a sixth of a core from the run it
-# measures, whose workers fill the cores. The resident sizes (/proc/PID/statm, a counter) are read every 0.1 s.
+# How often the sampler reads the proportional set sizes and walks /proc for the process tree: smaps_rollup walks
+# a process's page tables (7-22 ms per process of a run), so reading it every 0.1 s would take about a sixth of a
+# core from the run it measures, whose workers fill the cores. The resident sizes (/proc/PID/statm, a counter)
+# and the CPU times of the processes known are read every 0.1 s.
 PROPORTIONAL_SECONDS = 1.0
 
 STAGES = ("read", "triangle", "mesh", "pack", "bake", "total")
@@ -246,12 +247,15 @@ def measure(tree, path, settings_options):
     proportional_due, proportional_stage = last_sample, None
     sampler_cpu = time.process_time()
     while child.poll() is None:
-        tree = _children()  # one walk of /proc per sample, for the memory and the CPU time
         proportional = last_sample >= proportional_due or stage != proportional_stage
-        own, others, count = tree_memory(child.pid, tree, proportional=proportional)
+        if proportional:
+            # The process tree, from one walk of /proc (about 3 ms) at the same pace: a process found up to a
+            # second late is booked its whole CPU time from its start; a process gone is skipped.
+            processes = _children()
+        own, others, count = tree_memory(child.pid, processes, proportional=proportional)
         if proportional:
             proportional_due, proportional_stage = last_sample + PROPORTIONAL_SECONDS, stage
-        ticks, now = tree_cpu_ticks(child.pid, tree), time.perf_counter()
+        ticks, now = tree_cpu_ticks(child.pid, processes), time.perf_counter()
         entry = busy.setdefault(stage, [0.0, 0.0])
         entry[0] += sum(max(value - last_ticks.get(pid, 0), 0) for pid, value in ticks.items()) / tick
         entry[1] += now - last_sample
