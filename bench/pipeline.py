@@ -252,9 +252,8 @@ def measure(tree, path, settings_options):
             # The process tree, from one walk of /proc (about 3 ms) at the same pace: a process found up to a
             # second late is booked its whole CPU time from its start; a process gone is skipped.
             processes = _children()
-        own, others, count = tree_memory(child.pid, processes, proportional=proportional)
-        if proportional:
             proportional_due, proportional_stage = last_sample + PROPORTIONAL_SECONDS, stage
+        own, others, count = tree_memory(child.pid, processes, proportional=proportional)
         ticks, now = tree_cpu_ticks(child.pid, processes), time.perf_counter()
         entry = busy.setdefault(stage, [0.0, 0.0])
         entry[0] += sum(max(value - last_ticks.get(pid, 0), 0) for pid, value in ticks.items()) / tick
