@@ -434,8 +434,8 @@ def minimize(objective, bounds, *, evaluations=100, initial_points=10, batch_siz
 
 
 def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100, initial_points=10, batch_size=4,
-                         x0=None, periodic=None, cost_lower_bound=None, patience=None, seed=0, candidates=256,
-                         local_candidates=64, fits=3):
+                         x0=None, periodic=None, cost_lower_bound=None, patience=None, min_improvement=0.0, seed=0,
+                         candidates=256, local_candidates=64, fits=3):
     """Minimize a cheap known cost subject to an expensive constraint ``constraint(x) <= threshold``.
 
     The GP models the constraint only; the acquisition is ``max(best_cost - cost(x), 0) * P(g(x) <= t)``, the
@@ -459,9 +459,12 @@ def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100
     cost_lower_bound : float, optional
         Known infimum of the cost over the box; the run stops early once a feasible point reaches it.
     patience : int, optional
-        Stop once ``patience`` evaluations in a row, counted from the one that found the cheapest feasible point
-        so far, found none cheaper (the feasible boundary is settled); until a feasible point is found the run
-        goes on. By default the whole budget is used.
+        Stop once the last ``patience`` evaluations found no feasible point cheaper than ``1 - min_improvement``
+        times the cheapest feasible cost before them (the feasible boundary is settled); until a feasible point
+        is found the run goes on. By default the whole budget is used.
+    min_improvement : float, optional
+        In [0, 1). 0: any cheaper feasible point keeps the run going; above 0, a run whose last ``patience``
+        evaluations cut the cheapest cost by less than that fraction has settled too.
 
     Returns
     -------
@@ -501,25 +504,28 @@ def minimize_constrained(cost, constraint, bounds, *, threshold, evaluations=100
 
     if patience is not None and (int(patience) != patience or patience < 1):
         raise ValueError(f"patience must be a positive whole number, got {patience}")
+    if not 0.0 <= min_improvement < 1.0:
+        raise ValueError(f"min_improvement must be in [0, 1), got {min_improvement}")
     reached = []
-    cheapest = {"cost": np.inf, "since": 0}  # the cheapest feasible cost and the evaluations after it
+    cheapest = [np.inf]  # the cheapest feasible cost after 0, 1, 2, ... evaluations
 
     def evaluate_and_check(unit_points):
         values = evaluate(unit_points)
         new_costs = np.asarray(costs[-len(values):])
         for value, cost_value in zip(values, new_costs):
-            if value <= threshold and cost_value < cheapest["cost"]:
-                cheapest["cost"], cheapest["since"] = cost_value, 0
-            else:
-                cheapest["since"] += 1
+            cheapest.append(min(cheapest[-1], cost_value) if value <= threshold else cheapest[-1])
         if cost_lower_bound is not None:
             tolerance = 1e-12 * max(1.0, abs(cost_lower_bound))
             reached.extend(new_costs[values <= threshold] <= cost_lower_bound + tolerance)
         return values
 
     def stop():
-        settled = (patience is not None and np.isfinite(cheapest["cost"]) and cheapest["since"] >= patience)
-        return settled or any(reached)
+        if any(reached):
+            return True
+        if patience is None or len(cheapest) <= patience:
+            return False
+        before = cheapest[-1 - patience]
+        return bool(np.isfinite(before) and cheapest[-1] >= (1.0 - min_improvement) * before)
 
     X, y = _run(evaluate_and_check, plan, bounds, evaluations=evaluations, initial_points=initial_points,
                 batch_size=batch_size, x0=x0, periodic=periodic, seed=seed, candidates=candidates,

@@ -40,8 +40,10 @@ Decisions (the paper leaves them open):
   one at a time from the best feasible point (:func:`_polish`): aligned high-frequency textures have thin
   feasible sets (stripes: ``alpha ~ 0``, ``beta ~ 0``, ``lambda1 ~ 1``, any ``lambda2``) that a stationary GP
   finds but rarely walks along. The Bayesian optimization hands over to the bisection early once
-  ``PATIENCE = 24`` evaluations in a row (six rounds of four) found no feasible point of smaller area than the
-  best one: the feasible boundary is settled, and later rounds rarely find a smaller area.
+  ``PATIENCE = 24`` evaluations in a row (six rounds of four) cut the smallest feasible area by less than
+  ``PATIENCE_IMPROVEMENT = 0.02`` of it: the feasible boundary is settled, later rounds rarely find a
+  smaller area, and the bisection takes the last per cents along ``lambda1`` and ``lambda2`` for fewer
+  evaluations than the search spends creeping towards them.
   Both formulations return the best evaluated point that satisfies ``E <= epsilon`` by the exact criterion
   (area, or Eq. 14 with the true barrier); the identity is always evaluated first, so one exists whenever
   the input itself is within the bound (``E(identity) ~ 1e-12``).
@@ -107,6 +109,7 @@ ROTATION_SAMPLES = 8
 STRETCH_SAMPLES = 16
 POLISH_EVALUATIONS = 12
 PATIENCE = 24
+PATIENCE_IMPROVEMENT = 0.02
 _QUARTER = 0.5 * math.pi
 _FORMULATIONS = ("constrained", "barrier")
 _BACKENDS = ("fast", "skopt")
@@ -277,7 +280,8 @@ def _polish(loss, best, epsilon, lambda_min, evaluations):
 
 
 def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMBDA_MIN, formulation=None,
-                      backend="fast", seed=0, weights=True, polish_evaluations=None, patience=PATIENCE):
+                      backend="fast", seed=0, weights=True, polish_evaluations=None, patience=PATIENCE,
+                      patience_improvement=PATIENCE_IMPROVEMENT):
     """Optimal deformation of one triangle (Eq. 7 / 12-14) and its sensitivity weights (Eq. 17).
 
     Parameters
@@ -296,8 +300,10 @@ def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMB
         ``min(POLISH_EVALUATIONS, evaluations // 5)``).
     patience : int or None, optional
         The constrained form's Bayesian optimization hands over to the bisection once this many evaluations
-        in a row found no feasible point of smaller area (default :data:`PATIENCE`; None spends the whole
-        budget).
+        in a row cut the smallest feasible area by less than a fraction ``patience_improvement`` (defaults
+        :data:`PATIENCE` and :data:`PATIENCE_IMPROVEMENT`; None spends the whole budget).
+    patience_improvement : float, optional
+        In [0, 1); 0 lets any smaller feasible area keep the search going.
     lambda_min : float, optional
         Lower bound of ``lambda1, lambda2``.
     formulation : {"constrained", "barrier"}, optional
@@ -339,7 +345,8 @@ def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMB
         found = bayesopt.minimize_constrained(
             lambda P: P[:, 1] * P[:, 2], lambda P: np.log(loss(P) + offset), bounds,
             threshold=math.log(epsilon + offset), evaluations=evaluations - polish, x0=np.vstack([identity, corner]),
-            periodic=periodic, cost_lower_bound=lambda_min * lambda_min, patience=patience, seed=seed)
+            periodic=periodic, cost_lower_bound=lambda_min * lambda_min, patience=patience,
+            min_improvement=patience_improvement, seed=seed)
         if found.feasible and found.fun > lambda_min * lambda_min * (1 + 1e-9):
             _polish(loss, found.x, epsilon, lambda_min, polish)
     else:

@@ -322,6 +322,27 @@ def test_minimize_constrained_patience_stops_a_run_that_settled():
     assert short.fun == costs[cheapest[-1]]
 
 
+def test_minimize_constrained_min_improvement_settles_a_creeping_run():
+    # The circle problem again. With min_improvement the run is still the first part of the run without
+    # patience, and it stops at the first round's end n (rounds of batch_size = 4 after the 10-point design)
+    # where the last 8 evaluations cut the cheapest feasible cost by less than a fifth:
+    # cheapest(n) >= 0.8 * cheapest(n - 8), computed here from the whole run's costs.
+    def run(patience, min_improvement=0.0):
+        return minimize_constrained(lambda P: P[:, 0] * P[:, 1],
+                                    lambda P: (1 - P[:, 0]) ** 2 + (1 - P[:, 1]) ** 2, [[0.1, 1], [0.1, 1]],
+                                    threshold=0.5, x0=[[1, 1]], evaluations=100, patience=patience,
+                                    min_improvement=min_improvement, seed=0)
+
+    full, exact, creeping = run(None), run(8), run(8, 0.2)
+    costs = full.X[:, 0] * full.X[:, 1]
+    cheapest = np.minimum.accumulate(np.where(full.y <= 0.5, costs, np.inf))
+    ends = list(range(10, 101, 4))
+    settled = [n for n in ends if n > 8 and np.isfinite(cheapest[n - 9]) and cheapest[n - 1] >= 0.8 * cheapest[n - 9]]
+    assert creeping.evaluations == settled[0] < exact.evaluations
+    np.testing.assert_array_equal(creeping.X, full.X[:creeping.evaluations])
+    assert creeping.fun == cheapest[creeping.evaluations - 1]
+
+
 def test_minimize_constrained_patience_waits_for_a_feasible_point():
     result = minimize_constrained(lambda P: P[:, 0], lambda P: 1 + P[:, 0] ** 2, [[0, 1]], threshold=0.5,
                                   evaluations=15, patience=3, seed=0)
@@ -348,6 +369,9 @@ def test_validation_errors():
         minimize(_branin, [[0, 1], [0, 1]], periodic=[True])
     with pytest.raises(ValueError, match="patience"):
         minimize_constrained(lambda P: P[:, 0], lambda P: P[:, 0], [[0, 1]], threshold=0.5, patience=0)
+    with pytest.raises(ValueError, match="min_improvement"):
+        minimize_constrained(lambda P: P[:, 0], lambda P: P[:, 0], [[0, 1]], threshold=0.5, patience=4,
+                             min_improvement=1.0)
 
 
 def test_skopt_backend_same_budget_and_start():
