@@ -413,56 +413,132 @@ def _touch_triangles(pixels, grid, grow):
     """Mark in ``grid`` every pixel a triangle overlaps, then grow the marks by ``grow`` pixels on every side."""
     rows, cols = grid.shape
     touched = np.zeros((rows, cols), dtype=np.bool_)
+    normals = np.empty((3, 2))
+    spans = np.empty((3, 2))
     for t in range(pixels.shape[0]):
         x0, y0 = pixels[t, 0, 0], pixels[t, 0, 1]
         x1, y1 = pixels[t, 1, 0], pixels[t, 1, 1]
         x2, y2 = pixels[t, 2, 0], pixels[t, 2, 1]
+        _edge_axes(x0, y0, x1, y1, x2, y2, normals, spans)
         # pixels [c, c + 1) that meet the open interval of the triangle's extent (at least one per axis)
         cx0 = int(np.floor(min(x0, x1, x2)))
         cx1 = max(cx0, int(np.ceil(max(x0, x1, x2))) - 1)
         cy0 = int(np.floor(min(y0, y1, y2)))
         cy1 = max(cy0, int(np.ceil(max(y0, y1, y2))) - 1)
+        first, last = max(cx0, 0), min(cx1, cols - 1)
         for cy in range(max(cy0, 0), min(cy1, rows - 1) + 1):
-            for cx in range(max(cx0, 0), min(cx1, cols - 1) + 1):
-                if touched[cy, cx]:
-                    continue
-                if _triangle_meets_box(x0, y0, x1, y1, x2, y2, cx, cy):
-                    touched[cy, cx] = True
-    for cy in range(rows):
-        for cx in range(cols):
-            if touched[cy, cx]:
-                for dy in range(max(cy - grow, 0), min(cy + grow, rows - 1) + 1):
-                    for dx in range(max(cx - grow, 0), min(cx + grow, cols - 1) + 1):
-                        grid[dy, dx] = True
+            # The triangle meets a run of the row's pixels (its part in the row is convex). The run's ends are
+            # searched from where that part begins and ends along x, a separating-axes test per pixel they move
+            # by; where rounding puts the guess off the run, the search walks the row until it meets it.
+            x_low, x_high = _slab_extent(x0, y0, x1, y1, x2, y2, cy, cy + 1)
+            left = min(max(int(np.floor(x_low)), first), last)
+            if not _box_meets_axes(normals, spans, left, cy):
+                probe = left + 1
+                while probe <= last and not _box_meets_axes(normals, spans, probe, cy):
+                    probe += 1
+                if probe > last:
+                    probe = left - 1
+                    while probe >= first and not _box_meets_axes(normals, spans, probe, cy):
+                        probe -= 1
+                    if probe < first:
+                        continue
+                left = probe
+            while left > first and _box_meets_axes(normals, spans, left - 1, cy):
+                left -= 1
+            right = max(min(int(np.ceil(x_high)) - 1, last), left)
+            if _box_meets_axes(normals, spans, right, cy):
+                while right < last and _box_meets_axes(normals, spans, right + 1, cy):
+                    right += 1
+            else:
+                while not _box_meets_axes(normals, spans, right, cy):
+                    right -= 1
+            for cx in range(left, right + 1):
+                touched[cy, cx] = True
+    _grow_marks(touched, grid, grow)
 
 
 @njit
-def _triangle_meets_box(x0, y0, x1, y1, x2, y2, bx, by):
-    """Whether the triangle and the unit box ``[bx, bx+1] x [by, by+1]`` overlap in more than their boundaries
-    (separating axes: the box's two axes, which the caller's bounding-box loop covers, and the triangle's edge
-    normals; a degenerate triangle, a segment, meets the boxes its inside crosses)."""
+def _slab_extent(x0, y0, x1, y1, x2, y2, bottom, top):
+    """``(low, high)``: the extent along x of the triangle's part with ``bottom <= y <= top`` (the triangle's
+    x extent if that part is empty)."""
+    xs = (x0, x1, x2)
+    ys = (y0, y1, y2)
+    low, high = np.inf, -np.inf
+    for e in range(3):
+        ax, ay = xs[e], ys[e]
+        bx, by = xs[(e + 1) % 3], ys[(e + 1) % 3]
+        if bottom <= ay <= top:
+            low, high = min(low, ax), max(high, ax)
+        if ay != by:
+            for level in (bottom, top):
+                if min(ay, by) <= level <= max(ay, by):
+                    x = ax + (level - ay) * (bx - ax) / (by - ay)
+                    low, high = min(low, x), max(high, x)
+    if low > high:
+        return min(x0, x1, x2), max(x0, x1, x2)
+    return low, high
+
+
+@njit
+def _edge_axes(x0, y0, x1, y1, x2, y2, normals, spans):
+    """The triangle's edge normals (either side; zero for an edge of zero length) and its projection onto each,
+    ``[min, max]``: the axes :func:`_box_meets_axes` separates on."""
     xs = (x0, x1, x2)
     ys = (y0, y1, y2)
     for e in range(3):
         ax, ay = xs[e], ys[e]
-        bx_, by_ = xs[(e + 1) % 3], ys[(e + 1) % 3]
-        nx, ny = -(by_ - ay), bx_ - ax  # edge normal (either side)
-        if nx == 0.0 and ny == 0.0:
-            continue
-        # the triangle's projection, and the box's
-        tmin = tmax = nx * xs[0] + ny * ys[0]
+        bx, by = xs[(e + 1) % 3], ys[(e + 1) % 3]
+        nx, ny = -(by - ay), bx - ax
+        low = high = nx * xs[0] + ny * ys[0]
         for k in range(1, 3):
             value = nx * xs[k] + ny * ys[k]
-            tmin = min(tmin, value)
-            tmax = max(tmax, value)
-        bmin = bmax = nx * bx + ny * by
-        for corner in range(1, 4):
-            value = nx * (bx + (corner & 1)) + ny * (by + (corner >> 1))
-            bmin = min(bmin, value)
-            bmax = max(bmax, value)
-        if bmax <= tmin or bmin >= tmax:
+            low = min(low, value)
+            high = max(high, value)
+        normals[e, 0], normals[e, 1] = nx, ny
+        spans[e, 0], spans[e, 1] = low, high
+
+
+@njit
+def _box_meets_axes(normals, spans, bx, by):
+    """Whether the triangle of :func:`_edge_axes` and the unit box ``[bx, bx+1] x [by, by+1]`` overlap in more
+    than their boundaries (separating axes: the box's two axes, which the caller's bounding-box loop covers, and
+    the triangle's edge normals; a degenerate triangle, a segment, meets the boxes its inside crosses).
+
+    The box's projection onto a normal ``(nx, ny)`` is lowest at its corner ``(bx + [nx < 0], by + [ny < 0])``
+    and highest at the opposite one: rounding is monotonic, so these two corners give the extremes of all four
+    in floating point too.
+    """
+    for e in range(3):
+        nx, ny = normals[e, 0], normals[e, 1]
+        if nx == 0.0 and ny == 0.0:
+            continue
+        low = nx * (bx + (1 if nx < 0.0 else 0)) + ny * (by + (1 if ny < 0.0 else 0))
+        high = nx * (bx + (1 if nx > 0.0 else 0)) + ny * (by + (1 if ny > 0.0 else 0))
+        if high <= spans[e, 0] or low >= spans[e, 1]:
             return False
     return True
+
+
+@njit
+def _grow_marks(touched, grid, grow):
+    """Mark in ``grid`` every pixel within ``grow`` pixels (along each axis) of a pixel marked in ``touched``:
+    the square dilation, as a dilation along the rows and then one along the columns."""
+    rows, cols = touched.shape
+    across = np.zeros((rows, cols), dtype=np.bool_)
+    for cy in range(rows):
+        marked = -1  # the last column marked in this row
+        for cx in range(cols):
+            if touched[cy, cx]:
+                for c in range(max(cx - grow, marked + 1), min(cx + grow, cols - 1) + 1):
+                    across[cy, c] = True
+                marked = min(cx + grow, cols - 1)
+    marked = np.full(cols, -1, dtype=np.int64)  # the last row marked in each column
+    for cy in range(rows):
+        for cx in range(cols):
+            if across[cy, cx]:
+                for r in range(max(cy - grow, marked[cx] + 1), min(cy + grow, rows - 1) + 1):
+                    grid[r, cx] = True
+                marked[cx] = min(cy + grow, rows - 1)
 
 
 def _place_all(bitmaps, chart_order, width, *, limit):
@@ -510,14 +586,30 @@ def _empty_rows(height, width):
     return np.repeat(np.arange(width, 0, -1, dtype=np.int32)[None, :], height, axis=0)
 
 
+@njit
 def _row_spans(grid):
-    """Per row of ``grid``, its runs of marked pixels as (row, start, end) triples, (n, 3) int32."""
-    padded = np.zeros((grid.shape[0], grid.shape[1] + 2), dtype=np.int8)
-    padded[:, 1:-1] = grid
-    change = np.diff(padded, axis=1)
-    rows_start, starts = np.nonzero(change == 1)
-    rows_end, ends = np.nonzero(change == -1)
-    return np.stack([rows_start, starts, ends], axis=1).astype(np.int32)
+    """Per row of ``grid``, its runs of marked pixels as (row, start, end) triples, (n, 3) int32, in row order
+    and then left to right."""
+    rows, cols = grid.shape
+    count = 0
+    for r in range(rows):
+        for c in range(cols):
+            if grid[r, c] and (c == 0 or not grid[r, c - 1]):
+                count += 1
+    spans = np.empty((count, 3), dtype=np.int32)
+    n = 0
+    for r in range(rows):
+        c = 0
+        while c < cols:
+            if grid[r, c]:
+                start = c
+                while c < cols and grid[r, c]:
+                    c += 1
+                spans[n, 0], spans[n, 1], spans[n, 2] = r, start, c
+                n += 1
+            else:
+                c += 1
+    return spans
 
 
 @njit

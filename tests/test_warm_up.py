@@ -9,7 +9,7 @@ MAIN_PROCESS_KERNELS = [(footprint, "_footprint_kernel"), (textured, "_textured_
                         (meshwise_local, "_local_update_kernel"), (meshwise_global, "_hessian_blocks_kernel"),
                         (one_ring, "_one_ring_kernel"), (overlap, "_overlap_areas_kernel"), (overlap, "_grid_pairs"),
                         (packing, "_touch_triangles"),
-                        (packing, "_first_fit"), (packing, "_occupy")]
+                        (packing, "_row_spans"), (packing, "_first_fit"), (packing, "_occupy")]
 
 
 def test_every_main_process_kernel_is_loaded():
