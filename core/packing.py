@@ -620,18 +620,18 @@ def _first_fit(free_run, longest, spans, rows, cols, lowest, stop):
     ``free_run`` is signed (:func:`_empty_rows`): where a span does not fit, the search jumps past the free run
     it met and the occupied run after it, or past the occupied run it started in, in one step; any failing span
     gives a jump that skips no valid place, so the order the spans are tried in does not change the result.
-    ``longest`` holds each row's longest free run: rows a span cannot meet are skipped.
+    ``longest`` holds each row's longest free run: a row where the bitmap's widest span would lie without a
+    free run that long is skipped (testing every span there costs more than the places it saves).
     """
     height, width = free_run.shape
     count = spans.shape[0]
+    widest_row, widest_length = 0, 0  # an empty bitmap (a chart of zero area) fits anywhere
+    for s in range(count):
+        if spans[s, 2] - spans[s, 1] > widest_length:
+            widest_row, widest_length = spans[s, 0], spans[s, 2] - spans[s, 1]
     failed = 0  # the span that failed last is tried first at the next place: it usually fails again
     for y in range(lowest, min(height - rows, stop) + 1):
-        fits = True
-        for s in range(spans.shape[0]):
-            if longest[y + spans[s, 0]] < spans[s, 2] - spans[s, 1]:
-                fits = False
-                break
-        if not fits:
+        if longest[y + widest_row] < widest_length:
             continue
         x = 0
         while x <= width - cols:

@@ -196,6 +196,8 @@ def test_a_placed_bitmap_leaves_signed_runs_and_the_search_jumps_over_it():
     bar6 = _row_spans(np.ones((1, 6), dtype=bool))
     assert _first_fit(free_run, longest, bar6, 1, 6, 0, 2) == (2, 0)  # only the free row is long enough
     assert _first_fit(free_run, longest, bar6, 1, 6, 0, 1) == (-1, -1)  # not above row 1
+    empty = np.empty((0, 3), dtype=np.int32)  # a chart of zero area: no pixel, it fits at the first place
+    assert _first_fit(free_run, longest, empty, 1, 1, 0, 2) == (0, 0)
 
 
 def _clipped_area(triangle, x, y):
