@@ -3,7 +3,8 @@
 Each chart is drawn at a fixed texel density into a bitmap of the pixels it touches (conservative raster),
 grown by half the margin on every side; the bitmaps, largest first, are placed bottom-left in a strip as wide as
 the image, each in the quarter turn whose top edge ends lowest, and the smallest image that holds them all is
-searched. Charts move by whole pixels, so the gap between two charts is at least the margin in pixels of the
+searched. Where largest first does not fit, the charts are placed again longest perimeter first: a greedy
+placement's result depends on its order, and a second order lowers the odds that an unlucky one sets the size. Charts move by whole pixels, so the gap between two charts is at least the margin in pixels of the
 final image, and nothing rotates by other angles or shears (paper Sec. 5.1, "Texture packing": the orientation
 the mesh-wise stage chose relative to the texel grid is kept).
 
@@ -224,9 +225,9 @@ class _Layout:
         return self.extent * density > _MAX_SIDE or self.root_area * density > _MAX_SIDE
 
     def bitmaps(self, density):
-        """Generator: per chart and quarter turn (bitmap's shape, its rows' spans, origin), the placing order
-        (largest first), the pixels they cover and the largest of the charts' narrower sides; yields after each
-        chart's bitmap in each turn the first time a density is asked for."""
+        """Generator: per chart and quarter turn (bitmap's shape, its rows' spans, origin), the placing orders
+        (:func:`_placing_orders`), the pixels they cover and the largest of the charts' narrower sides; yields
+        after each chart's bitmap in each turn the first time a density is asked for."""
         if density not in self._bitmaps:
             bitmaps = []
             sizes = np.zeros(self.count, dtype=np.int64)
@@ -240,20 +241,29 @@ class _Layout:
                         sizes[chart] = grid.sum()
                     yield
                 bitmaps.append(turns)
-            self._bitmaps[density] = (bitmaps, np.argsort(-sizes, kind="stable"), int(sizes.sum()),
-                                      max(min(turns[0][0]) for turns in bitmaps))
+            boxes = np.array([turns[0][0] for turns in bitmaps], dtype=np.int64).reshape(-1, 2)
+            self._bitmaps[density] = (bitmaps, _placing_orders(sizes, boxes), int(sizes.sum()),
+                                      int(boxes.min(axis=1).max()))
         return self._bitmaps[density]
 
-    def place(self, density, width, height):
-        """Generator: the charts at ``density`` placed in a ``width x height`` image, or None if they do not fit;
-        yields after each bitmap made and each chart placed."""
-        bitmaps, chart_order, _, narrowest = yield from self.bitmaps(density)
-        if min(width, height) < narrowest or max(width, height) > _MAX_SIDE:
-            return None
-        placed = yield from _place_all(bitmaps, chart_order, width, limit=height)
-        if placed is None:
-            return None
-        positions, chosen, _ = placed
+    def place(self, density, width, height, *, every_order=False):
+        """Generator: the charts at ``density`` placed in a ``width x height`` image in the first of the placing
+        orders that fits, or None if none does; with ``every_order``, the list of the packings of every order
+        that fits. Yields after each bitmap made and each chart placed."""
+        bitmaps, orders, _, narrowest = yield from self.bitmaps(density)
+        found = []
+        if min(width, height) >= narrowest and max(width, height) <= _MAX_SIDE:
+            for chart_order in orders:
+                placed = yield from _place_all(bitmaps, chart_order, width, limit=height)
+                if placed is not None:
+                    found.append(self._packing(bitmaps, density, width, height, *placed[:2]))
+                    if not every_order:
+                        break
+        if every_order:
+            return found
+        return found[0] if found else None
+
+    def _packing(self, bitmaps, density, width, height, positions, chosen):
         out = np.empty_like(self.uv)
         for chart in range(self.count):
             rows = self.order[self.starts[chart]:self.starts[chart + 1]]
@@ -265,16 +275,39 @@ class _Layout:
                        texels_per_unit=float(density), coverage=coverage)
 
 
+def _placing_orders(pixels, boxes):
+    """The orders the charts are placed in, each tried when the ones before it do not fit: largest bitmap first,
+    then longest box perimeter first (ties in the order before), without repeats.
+
+    Parameters
+    ----------
+    pixels : (k,) int ndarray
+        Pixels of each chart's bitmap.
+    boxes : (k, 2) int ndarray
+        Rows and columns of each chart's bitmap.
+
+    Returns
+    -------
+    tuple of (k,) int ndarray
+    """
+    largest = np.argsort(-pixels, kind="stable")
+    orders = [largest]
+    perimeter = largest[np.argsort(-boxes[largest].sum(axis=1), kind="stable")]
+    if not np.array_equal(perimeter, largest):
+        orders.append(perimeter)
+    return tuple(orders)
+
+
 def _pack_into(layout, sizes, density):
     """Generator: the densest packing found that fits one of ``sizes`` (``(width, height)`` each), scaled up to
     fill it, or None.
 
-    Each try fills a strip as wide as an image bottom-left and fits if it is no higher; a density fits when one
-    size does. The density moves in 5 % steps from ``density`` (a guess) until one try fits and the next does
+    Each try fills a strip as wide as an image bottom-left, in each placing order until one is no higher than
+    the image; a density fits when one size does. The density moves in 5 % steps from ``density`` (a guess) until one try fits and the next does
     not, then 1 % steps go down from the one that did not (whether a packing fits is not monotonic in the
-    density) and the first that fits wins. Every size that fits at that density is scaled up until its charts
-    reach the far border but for half a margin (every gap grows with it), and the densest result wins, the
-    earlier size of equals. The sizes share one density search, so they share its bitmaps too.
+    density) and the first that fits wins. Every size and order that fits at that density is scaled up until its
+    charts reach the far border but for half a margin (every gap grows with it), and the densest result wins, the
+    earlier size (then order) of equals. The sizes share one density search, so they share its bitmaps too.
     """
     # generator: the packings in ``candidates`` that fit at ``density``, the first one only unless ``every``
     def attempt(density, candidates=sizes, every=False):
@@ -282,11 +315,13 @@ def _pack_into(layout, sizes, density):
         if layout.too_dense(density):
             return found
         for width, height in candidates:
+            if every:
+                found.extend((yield from layout.place(density, width, height, every_order=True)))
+                continue
             packing = yield from layout.place(density, width, height)
             if packing is not None:
                 found.append(packing)
-                if not every:
-                    break
+                break
         return found
 
     best = yield from attempt(density)
@@ -313,9 +348,8 @@ def _pack_into(layout, sizes, density):
         if finer:
             density, best = candidate, finer
             break
-    if len(sizes) > 1:  # the sizes before the first that fits do not fit; those after it may
-        first = best[0]
-        best = [first] + (yield from attempt(density, sizes[sizes.index(first.size) + 1:], every=True))
+    # the sizes before the first that fits do not fit; that one in other orders and those after it may
+    best = yield from attempt(density, sizes[sizes.index(best[0].size):], every=True)
     return max((_fill(packing, layout.margin) for packing in best), key=lambda packing: packing.texels_per_unit)
 
 

@@ -307,6 +307,33 @@ def test_placement_matches_a_pixel_by_pixel_first_fit():
             assert chosen[chart] == expected[1][chart], trial
 
 
+def test_charts_that_do_not_fit_largest_first_are_placed_longest_perimeter_first():
+    from perceptual_uv.core.packing import _place_all, _placing_orders, _row_spans
+    from perceptual_uv.core.progress import run_generator
+
+    # Rectangles (columns x rows) A 7 x 6, B 4 x 5, C 7 x 1, D 4 x 3: 81 px. Largest first (A, B, D, C) in a
+    # 10 x 10 image: A at (0, 0), B turned to 5 x 4 at (0, 6), D turned to 3 x 4 at (7, 0) (top 4), then C finds no
+    # row with 7 free pixels and no column with 7 free rows (column 7: rows 4-9). Longest perimeter first (A, B, C,
+    # D): C stands at column 7, rows 0-6, and D lies at (5, 7).
+    uv, face_chart = charts_of([(0, 0, 7, 6), (20, 0, 4, 5), (40, 0, 7, 1), (60, 0, 4, 3)])
+    pixels = np.array([42, 20, 7, 12])
+    boxes = np.array([[6, 7], [5, 4], [1, 7], [3, 4]])
+    orders = _placing_orders(pixels, boxes)
+    assert [order.tolist() for order in orders] == [[0, 1, 3, 2], [0, 1, 2, 3]]
+    grids = [np.ones((rows, cols), dtype=bool) for rows, cols in boxes]
+    bitmaps = [[(np.rot90(g, k).shape, _row_spans(np.rot90(g, k)), None) for k in range(4)] for g in grids]
+    assert run_generator(_place_all(bitmaps, orders[0], 10, limit=10)) is None
+    packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=1.0)
+    assert packing.size == (10, 10)
+    expected = [([0, 0], [7, 6]), ([0, 6], [5, 10]), ([7, 0], [8, 7]), ([5, 7], [9, 10])]
+    for (low, high), (want_low, want_high) in zip(pixel_boxes(packing, face_chart), expected):
+        np.testing.assert_allclose(low, want_low, atol=1e-9)
+        np.testing.assert_allclose(high, want_high, atol=1e-9)
+    # A 10 px image holds them at their own density (within the density search's 1 % steps; largest first alone
+    # reaches 0.91 of it).
+    assert pack_charts(uv, face_chart, margin=0, resolution=10).texels_per_unit > 0.99
+
+
 def test_image_sizes_keep_to_the_square_pixel_count():
     from perceptual_uv.core.packing import image_sizes
 
