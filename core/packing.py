@@ -4,9 +4,10 @@ Each chart is drawn at a fixed texel density into a bitmap of the pixels it touc
 grown by half the margin on every side; the bitmaps, largest first, are placed bottom-left in a strip as wide as
 the image, each in the quarter turn whose top edge ends lowest, and the smallest image that holds them all is
 searched. Where largest first does not fit, the charts are placed again longest perimeter first: a greedy
-placement's result depends on its order, and a second order lowers the odds that an unlucky one sets the size. Charts move by whole pixels, so the gap between two charts is at least the margin in pixels of the
-final image, and nothing rotates by other angles or shears (paper Sec. 5.1, "Texture packing": the orientation
-the mesh-wise stage chose relative to the texel grid is kept).
+placement's result depends on its order, and a second order lowers the odds that an unlucky one sets the size.
+Charts move by whole pixels, so the gap between two charts is at least the margin in pixels of the final image,
+and nothing rotates by other angles or shears (paper Sec. 5.1, "Texture packing": the orientation the mesh-wise
+stage chose relative to the texel grid is kept).
 
 The texel density is what the cost fixes (Eq. 20-21): at ``d`` pixels per unit of the fitted UV map, a chart
 of fitted area ``a`` covers ``d^2 a`` texels whatever the image size, so the image's pixel count is simply what
@@ -26,6 +27,7 @@ import dataclasses
 import numpy as np
 
 from ._jit import njit
+from .chart_bitmaps import chart_bitmap, row_spans
 from .charts import signed_uv_areas
 from .progress import run_generator
 
@@ -235,8 +237,8 @@ class _Layout:
                 pixels = self.uv[self.order[self.starts[chart]:self.starts[chart + 1]]] * density
                 turns = []
                 for turn in range(4):
-                    grid, origin = _chart_bitmap(_turn(pixels, turn), self.grow)
-                    turns.append((grid.shape, _row_spans(grid), origin))
+                    grid, origin = chart_bitmap(_turn(pixels, turn), grow=self.grow)
+                    turns.append((grid.shape, row_spans(grid), origin))
                     if turn == 0:
                         sizes[chart] = grid.sum()
                     yield
@@ -303,11 +305,12 @@ def _pack_into(layout, sizes, density):
     fill it, or None.
 
     Each try fills a strip as wide as an image bottom-left, in each placing order until one is no higher than
-    the image; a density fits when one size does. The density moves in 5 % steps from ``density`` (a guess) until one try fits and the next does
-    not, then 1 % steps go down from the one that did not (whether a packing fits is not monotonic in the
-    density) and the first that fits wins. Every size and order that fits at that density is scaled up until its
-    charts reach the far border but for half a margin (every gap grows with it), and the densest result wins, the
-    earlier size (then order) of equals. The sizes share one density search, so they share its bitmaps too.
+    the image; a density fits when one size does. The density moves in 5 % steps from ``density`` (a guess)
+    until one try fits and the next does not, then 1 % steps go down from the one that did not (whether a
+    packing fits is not monotonic in the density) and the first that fits wins. Every size and order that fits
+    at that density is scaled up until its charts reach the far border but for half a margin (every gap grows
+    with it), and the densest result wins, the earlier size (then order) of equals. The sizes share one density
+    search, so they share its bitmaps too.
     """
     # generator: the packings in ``candidates`` that fit at ``density``, the first one only unless ``every``
     def attempt(density, candidates=sizes, every=False):
@@ -430,151 +433,6 @@ def _turn(points, turn):
     return np.stack(turned, axis=-1)
 
 
-def _chart_bitmap(pixels, grow):
-    """The pixels ``pixels``' triangles overlap, grown by ``grow``, with the chart's lower corner moved onto a
-    pixel corner ``grow`` pixels in; the bitmap (rows: v, columns: u) and the chart's offset into it."""
-    low = pixels.reshape(-1, 2).min(axis=0)
-    extent = pixels.reshape(-1, 2).max(axis=0) - low
-    shape = (np.maximum(np.ceil(extent), 1) + 2 * grow).astype(np.int64)
-    grid = np.zeros((shape[1], shape[0]), dtype=np.bool_)
-    origin = low - grow
-    _touch_triangles(pixels - origin, grid, grow)
-    return grid, origin
-
-
-@njit
-def _touch_triangles(pixels, grid, grow):
-    """Mark in ``grid`` every pixel a triangle overlaps, then grow the marks by ``grow`` pixels on every side."""
-    rows, cols = grid.shape
-    touched = np.zeros((rows, cols), dtype=np.bool_)
-    normals = np.empty((3, 2))
-    spans = np.empty((3, 2))
-    for t in range(pixels.shape[0]):
-        x0, y0 = pixels[t, 0, 0], pixels[t, 0, 1]
-        x1, y1 = pixels[t, 1, 0], pixels[t, 1, 1]
-        x2, y2 = pixels[t, 2, 0], pixels[t, 2, 1]
-        _edge_axes(x0, y0, x1, y1, x2, y2, normals, spans)
-        # pixels [c, c + 1) that meet the open interval of the triangle's extent (at least one per axis)
-        cx0 = int(np.floor(min(x0, x1, x2)))
-        cx1 = max(cx0, int(np.ceil(max(x0, x1, x2))) - 1)
-        cy0 = int(np.floor(min(y0, y1, y2)))
-        cy1 = max(cy0, int(np.ceil(max(y0, y1, y2))) - 1)
-        first, last = max(cx0, 0), min(cx1, cols - 1)
-        for cy in range(max(cy0, 0), min(cy1, rows - 1) + 1):
-            # The triangle meets a run of the row's pixels (its part in the row is convex). The run's ends are
-            # searched from where that part begins and ends along x, a separating-axes test per pixel they move
-            # by; where rounding puts the guess off the run, the search walks the row until it meets it.
-            x_low, x_high = _slab_extent(x0, y0, x1, y1, x2, y2, cy, cy + 1)
-            left = min(max(int(np.floor(x_low)), first), last)
-            if not _box_meets_axes(normals, spans, left, cy):
-                probe = left + 1
-                while probe <= last and not _box_meets_axes(normals, spans, probe, cy):
-                    probe += 1
-                if probe > last:
-                    probe = left - 1
-                    while probe >= first and not _box_meets_axes(normals, spans, probe, cy):
-                        probe -= 1
-                    if probe < first:
-                        continue
-                left = probe
-            while left > first and _box_meets_axes(normals, spans, left - 1, cy):
-                left -= 1
-            right = max(min(int(np.ceil(x_high)) - 1, last), left)
-            if _box_meets_axes(normals, spans, right, cy):
-                while right < last and _box_meets_axes(normals, spans, right + 1, cy):
-                    right += 1
-            else:
-                while not _box_meets_axes(normals, spans, right, cy):
-                    right -= 1
-            for cx in range(left, right + 1):
-                touched[cy, cx] = True
-    _grow_marks(touched, grid, grow)
-
-
-@njit
-def _slab_extent(x0, y0, x1, y1, x2, y2, bottom, top):
-    """``(low, high)``: the extent along x of the triangle's part with ``bottom <= y <= top`` (the triangle's
-    x extent if that part is empty)."""
-    xs = (x0, x1, x2)
-    ys = (y0, y1, y2)
-    low, high = np.inf, -np.inf
-    for e in range(3):
-        ax, ay = xs[e], ys[e]
-        bx, by = xs[(e + 1) % 3], ys[(e + 1) % 3]
-        if bottom <= ay <= top:
-            low, high = min(low, ax), max(high, ax)
-        if ay != by:
-            for level in (bottom, top):
-                if min(ay, by) <= level <= max(ay, by):
-                    x = ax + (level - ay) * (bx - ax) / (by - ay)
-                    low, high = min(low, x), max(high, x)
-    if low > high:
-        return min(x0, x1, x2), max(x0, x1, x2)
-    return low, high
-
-
-@njit
-def _edge_axes(x0, y0, x1, y1, x2, y2, normals, spans):
-    """The triangle's edge normals (either side; zero for an edge of zero length) and its projection onto each,
-    ``[min, max]``: the axes :func:`_box_meets_axes` separates on."""
-    xs = (x0, x1, x2)
-    ys = (y0, y1, y2)
-    for e in range(3):
-        ax, ay = xs[e], ys[e]
-        bx, by = xs[(e + 1) % 3], ys[(e + 1) % 3]
-        nx, ny = -(by - ay), bx - ax
-        low = high = nx * xs[0] + ny * ys[0]
-        for k in range(1, 3):
-            value = nx * xs[k] + ny * ys[k]
-            low = min(low, value)
-            high = max(high, value)
-        normals[e, 0], normals[e, 1] = nx, ny
-        spans[e, 0], spans[e, 1] = low, high
-
-
-@njit
-def _box_meets_axes(normals, spans, bx, by):
-    """Whether the triangle of :func:`_edge_axes` and the unit box ``[bx, bx+1] x [by, by+1]`` overlap in more
-    than their boundaries (separating axes: the box's two axes, which the caller's bounding-box loop covers, and
-    the triangle's edge normals; a degenerate triangle, a segment, meets the boxes its inside crosses).
-
-    The box's projection onto a normal ``(nx, ny)`` is lowest at its corner ``(bx + [nx < 0], by + [ny < 0])``
-    and highest at the opposite one: rounding is monotonic, so these two corners give the extremes of all four
-    in floating point too.
-    """
-    for e in range(3):
-        nx, ny = normals[e, 0], normals[e, 1]
-        if nx == 0.0 and ny == 0.0:
-            continue
-        low = nx * (bx + (1 if nx < 0.0 else 0)) + ny * (by + (1 if ny < 0.0 else 0))
-        high = nx * (bx + (1 if nx > 0.0 else 0)) + ny * (by + (1 if ny > 0.0 else 0))
-        if high <= spans[e, 0] or low >= spans[e, 1]:
-            return False
-    return True
-
-
-@njit
-def _grow_marks(touched, grid, grow):
-    """Mark in ``grid`` every pixel within ``grow`` pixels (along each axis) of a pixel marked in ``touched``:
-    the square dilation, as a dilation along the rows and then one along the columns."""
-    rows, cols = touched.shape
-    across = np.zeros((rows, cols), dtype=np.bool_)
-    for cy in range(rows):
-        marked = -1  # the last column marked in this row
-        for cx in range(cols):
-            if touched[cy, cx]:
-                for c in range(max(cx - grow, marked + 1), min(cx + grow, cols - 1) + 1):
-                    across[cy, c] = True
-                marked = min(cx + grow, cols - 1)
-    marked = np.full(cols, -1, dtype=np.int64)  # the last row marked in each column
-    for cy in range(rows):
-        for cx in range(cols):
-            if across[cy, cx]:
-                for r in range(max(cy - grow, marked[cx] + 1), min(cy + grow, rows - 1) + 1):
-                    grid[r, cx] = True
-                marked[cx] = min(cy + grow, rows - 1)
-
-
 def _place_all(bitmaps, chart_order, width, *, limit):
     """Generator: bottom-left placement of every chart in a strip ``width`` wide, no higher than ``limit``;
     yields after each chart placed; returns positions, turns and the used height, or None if they do not fit."""
@@ -618,32 +476,6 @@ def _empty_rows(height, width):
     In a row, a free pixel holds the length of the free run from it to the right (> 0), an occupied one minus
     the length of the occupied run from it (< 0) (:func:`_occupy`)."""
     return np.repeat(np.arange(width, 0, -1, dtype=np.int32)[None, :], height, axis=0)
-
-
-@njit
-def _row_spans(grid):
-    """Per row of ``grid``, its runs of marked pixels as (row, start, end) triples, (n, 3) int32, in row order
-    and then left to right."""
-    rows, cols = grid.shape
-    count = 0
-    for r in range(rows):
-        for c in range(cols):
-            if grid[r, c] and (c == 0 or not grid[r, c - 1]):
-                count += 1
-    spans = np.empty((count, 3), dtype=np.int32)
-    n = 0
-    for r in range(rows):
-        c = 0
-        while c < cols:
-            if grid[r, c]:
-                start = c
-                while c < cols and grid[r, c]:
-                    c += 1
-                spans[n, 0], spans[n, 1], spans[n, 2] = r, start, c
-                n += 1
-            else:
-                c += 1
-    return spans
 
 
 @njit

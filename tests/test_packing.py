@@ -180,80 +180,25 @@ def test_the_generator_hands_control_back_after_each_chart_and_each_try():
 
 
 def test_a_placed_bitmap_leaves_signed_runs_and_the_search_jumps_over_it():
-    from perceptual_uv.core.packing import _empty_rows, _first_fit, _occupy, _row_spans
+    from perceptual_uv.core.chart_bitmaps import row_spans
+    from perceptual_uv.core.packing import _empty_rows, _first_fit, _occupy
 
     free_run = _empty_rows(3, 10)
     longest = np.full(3, 10, dtype=np.int32)
-    block = _row_spans(np.ones((2, 2), dtype=bool))
+    block = row_spans(np.ones((2, 2), dtype=bool))
     _occupy(free_run, longest, block, 2, 0, 3)  # a 2 x 2 block at column 3 of rows 0 and 1
     # free pixels: the free run to their right; occupied: minus the occupied run from them
     assert free_run[0].tolist() == [3, 2, 1, -2, -1, 5, 4, 3, 2, 1]
     assert free_run[1].tolist() == free_run[0].tolist()
     assert free_run[2].tolist() == list(range(10, 0, -1))
     assert longest.tolist() == [5, 5, 10]
-    bar4 = _row_spans(np.ones((1, 4), dtype=bool))
+    bar4 = row_spans(np.ones((1, 4), dtype=bool))
     assert _first_fit(free_run, longest, bar4, 1, 4, 0, 2) == (0, 5)  # 3 free pixels, then past the block
-    bar6 = _row_spans(np.ones((1, 6), dtype=bool))
+    bar6 = row_spans(np.ones((1, 6), dtype=bool))
     assert _first_fit(free_run, longest, bar6, 1, 6, 0, 2) == (2, 0)  # only the free row is long enough
     assert _first_fit(free_run, longest, bar6, 1, 6, 0, 1) == (-1, -1)  # not above row 1
     empty = np.empty((0, 3), dtype=np.int32)  # a chart of zero area: no pixel, it fits at the first place
     assert _first_fit(free_run, longest, empty, 1, 1, 0, 2) == (0, 0)
-
-
-def _clipped_area(triangle, x, y):
-    """Area of the part of ``triangle`` (3, 2) inside the unit box at ``(x, y)`` (Sutherland-Hodgman clipping)."""
-    polygon = [tuple(p) for p in triangle]
-    for axis, bound, keep_below in ((0, x, False), (0, x + 1, True), (1, y, False), (1, y + 1, True)):
-        inside = (lambda p: p[axis] <= bound) if keep_below else (lambda p: p[axis] >= bound)
-        clipped = []
-        for k, current in enumerate(polygon):
-            previous = polygon[k - 1]
-            if inside(current) != inside(previous):
-                t = (bound - previous[axis]) / (current[axis] - previous[axis])
-                clipped.append(tuple(previous[i] + t * (current[i] - previous[i]) for i in range(2)))
-            if inside(current):
-                clipped.append(current)
-        polygon = clipped
-        if not polygon:
-            return 0.0
-    xs, ys = np.array(polygon).T
-    return 0.5 * abs(np.dot(xs, np.roll(ys, -1)) - np.dot(ys, np.roll(xs, -1)))
-
-
-def test_a_chart_bitmap_marks_the_pixels_its_triangles_overlap_grown_by_half_the_margin():
-    from scipy.ndimage import binary_dilation
-
-    from perceptual_uv.core.packing import _chart_bitmap, _row_spans
-
-    # By hand: the open triangle x + y < 3 overlaps the unit box at (cx, cy) where cx + cy < 3; the box at (2, 1)
-    # only touches its hypotenuse. Its lower corner lands one pixel in with a growth of one.
-    grid, origin = _chart_bitmap(np.array([[[5.0, 7.0], [8.0, 7.0], [5.0, 10.0]]]), 0)
-    assert grid.astype(int).tolist() == [[1, 1, 1], [1, 1, 0], [1, 0, 0]]
-    assert origin.tolist() == [5.0, 7.0]
-    grid, origin = _chart_bitmap(np.array([[[5.0, 7.0], [8.0, 7.0], [5.0, 10.0]]]), 1)
-    # covered: (1..3, 1), (1..2, 2), (1, 3); each grown to its 3 x 3 neighbourhood
-    assert grid.astype(int).tolist() == [[1, 1, 1, 1, 1], [1, 1, 1, 1, 1], [1, 1, 1, 1, 1], [1, 1, 1, 1, 0],
-                                         [1, 1, 1, 0, 0]]
-    assert origin.tolist() == [4.0, 6.0]
-    assert _row_spans(grid[3:]).tolist() == [[0, 0, 4], [1, 0, 3]]
-    # Random charts: a pixel is marked where some triangle covers part of it (clipped area), grown by a square.
-    rng = np.random.default_rng(7)
-    for trial in range(40):
-        count = int(rng.integers(1, 6))
-        pixels = rng.uniform(0, 12, size=(count, 3, 2)) * rng.uniform(0.2, 1.0, size=(count, 1, 2))
-        grow = int(rng.integers(0, 3))
-        grid, origin = _chart_bitmap(pixels, grow)
-        shifted = pixels - origin
-        covered = np.zeros_like(grid)
-        for cy in range(grid.shape[0]):
-            for cx in range(grid.shape[1]):
-                covered[cy, cx] = any(_clipped_area(t, cx, cy) > 1e-9 for t in shifted)
-        expected = binary_dilation(covered, np.ones((2 * grow + 1, 2 * grow + 1), dtype=bool)) if grow else covered
-        np.testing.assert_array_equal(grid, expected, err_msg=f"trial {trial}")
-        padded = np.pad(grid, ((0, 0), (1, 1))).astype(np.int8)
-        rows, starts = np.nonzero(np.diff(padded, axis=1) == 1)
-        _, ends = np.nonzero(np.diff(padded, axis=1) == -1)
-        np.testing.assert_array_equal(_row_spans(grid), np.stack([rows, starts, ends], axis=1))
 
 
 def _brute_force_place_all(grids, order, width, limit):
@@ -281,7 +226,8 @@ def _brute_force_place_all(grids, order, width, limit):
 
 
 def test_placement_matches_a_pixel_by_pixel_first_fit():
-    from perceptual_uv.core.packing import _place_all, _row_spans
+    from perceptual_uv.core.chart_bitmaps import row_spans
+    from perceptual_uv.core.packing import _place_all
     from perceptual_uv.core.progress import run_generator
 
     rng = np.random.default_rng(3)
@@ -292,7 +238,7 @@ def test_placement_matches_a_pixel_by_pixel_first_fit():
             grid[0, :] |= ~grid.any(axis=0)  # no empty column or row: a bitmap spans its box
             grid[:, 0] |= ~grid.any(axis=1)
             grids.append([np.rot90(grid, k) for k in range(4)])
-        bitmaps = [[(g.shape, _row_spans(g), None) for g in turns] for turns in grids]
+        bitmaps = [[(g.shape, row_spans(g), None) for g in turns] for turns in grids]
         order = rng.permutation(len(grids))
         width = limit = int(rng.integers(6, 12))
         expected = _brute_force_place_all(grids, order, width, limit)
@@ -308,7 +254,8 @@ def test_placement_matches_a_pixel_by_pixel_first_fit():
 
 
 def test_charts_that_do_not_fit_largest_first_are_placed_longest_perimeter_first():
-    from perceptual_uv.core.packing import _place_all, _placing_orders, _row_spans
+    from perceptual_uv.core.chart_bitmaps import row_spans
+    from perceptual_uv.core.packing import _place_all, _placing_orders
     from perceptual_uv.core.progress import run_generator
 
     # Rectangles (columns x rows) A 7 x 6, B 4 x 5, C 7 x 1, D 4 x 3: 81 px. Largest first (A, B, D, C) in a
@@ -321,7 +268,7 @@ def test_charts_that_do_not_fit_largest_first_are_placed_longest_perimeter_first
     orders = _placing_orders(pixels, boxes)
     assert [order.tolist() for order in orders] == [[0, 1, 3, 2], [0, 1, 2, 3]]
     grids = [np.ones((rows, cols), dtype=bool) for rows, cols in boxes]
-    bitmaps = [[(np.rot90(g, k).shape, _row_spans(np.rot90(g, k)), None) for k in range(4)] for g in grids]
+    bitmaps = [[(np.rot90(g, k).shape, row_spans(np.rot90(g, k)), None) for k in range(4)] for g in grids]
     assert run_generator(_place_all(bitmaps, orders[0], 10, limit=10)) is None
     packing = pack_charts(uv, face_chart, margin=0, texels_per_unit=1.0)
     assert packing.size == (10, 10)
