@@ -49,12 +49,12 @@ def _touch_triangles(pixels, grid, grow):
     rows, cols = grid.shape
     touched = np.zeros((rows, cols), dtype=np.bool_)
     normals = np.empty((3, 2))
-    spans = np.empty((3, 2))
+    projections = np.empty((3, 2))
     for t in range(pixels.shape[0]):
         x0, y0 = pixels[t, 0, 0], pixels[t, 0, 1]
         x1, y1 = pixels[t, 1, 0], pixels[t, 1, 1]
         x2, y2 = pixels[t, 2, 0], pixels[t, 2, 1]
-        _edge_axes(x0, y0, x1, y1, x2, y2, normals, spans)
+        _edge_axes(x0, y0, x1, y1, x2, y2, normals, projections)
         # pixels [c, c + 1) that meet the open interval of the triangle's extent (at least one per axis)
         cx0 = int(np.floor(min(x0, x1, x2)))
         cx1 = max(cx0, int(np.ceil(max(x0, x1, x2))) - 1)
@@ -67,25 +67,25 @@ def _touch_triangles(pixels, grid, grow):
             # by; where rounding puts the guess off the run, the search walks the row until it meets it.
             x_low, x_high = _slab_extent(x0, y0, x1, y1, x2, y2, cy, cy + 1)
             left = min(max(int(np.floor(x_low)), first), last)
-            if not _box_meets_axes(normals, spans, left, cy):
+            if not _box_meets_axes(normals, projections, left, cy):
                 probe = left + 1
-                while probe <= last and not _box_meets_axes(normals, spans, probe, cy):
+                while probe <= last and not _box_meets_axes(normals, projections, probe, cy):
                     probe += 1
                 if probe > last:
                     probe = left - 1
-                    while probe >= first and not _box_meets_axes(normals, spans, probe, cy):
+                    while probe >= first and not _box_meets_axes(normals, projections, probe, cy):
                         probe -= 1
                     if probe < first:
                         continue
                 left = probe
-            while left > first and _box_meets_axes(normals, spans, left - 1, cy):
+            while left > first and _box_meets_axes(normals, projections, left - 1, cy):
                 left -= 1
             right = max(min(int(np.ceil(x_high)) - 1, last), left)
-            if _box_meets_axes(normals, spans, right, cy):
-                while right < last and _box_meets_axes(normals, spans, right + 1, cy):
+            if _box_meets_axes(normals, projections, right, cy):
+                while right < last and _box_meets_axes(normals, projections, right + 1, cy):
                     right += 1
             else:
-                while not _box_meets_axes(normals, spans, right, cy):
+                while not _box_meets_axes(normals, projections, right, cy):
                     right -= 1
             for cx in range(left, right + 1):
                 touched[cy, cx] = True
@@ -115,7 +115,7 @@ def _slab_extent(x0, y0, x1, y1, x2, y2, bottom, top):
 
 
 @njit
-def _edge_axes(x0, y0, x1, y1, x2, y2, normals, spans):
+def _edge_axes(x0, y0, x1, y1, x2, y2, normals, projections):
     """The triangle's edge normals (either side; zero for an edge of zero length) and its projection onto each,
     ``[min, max]``: the axes :func:`_box_meets_axes` separates on."""
     xs = (x0, x1, x2)
@@ -130,11 +130,11 @@ def _edge_axes(x0, y0, x1, y1, x2, y2, normals, spans):
             low = min(low, value)
             high = max(high, value)
         normals[e, 0], normals[e, 1] = nx, ny
-        spans[e, 0], spans[e, 1] = low, high
+        projections[e, 0], projections[e, 1] = low, high
 
 
 @njit
-def _box_meets_axes(normals, spans, bx, by):
+def _box_meets_axes(normals, projections, bx, by):
     """Whether the triangle of :func:`_edge_axes` and the unit box ``[bx, bx+1] x [by, by+1]`` overlap in more
     than their boundaries (separating axes: the box's two axes, which the caller's bounding-box loop covers, and
     the triangle's edge normals; a degenerate triangle, a segment, meets the boxes its inside crosses).
@@ -149,7 +149,7 @@ def _box_meets_axes(normals, spans, bx, by):
             continue
         low = nx * (bx + (1 if nx < 0.0 else 0)) + ny * (by + (1 if ny < 0.0 else 0))
         high = nx * (bx + (1 if nx > 0.0 else 0)) + ny * (by + (1 if ny > 0.0 else 0))
-        if high <= spans[e, 0] or low >= spans[e, 1]:
+        if high <= projections[e, 0] or low >= projections[e, 1]:
             return False
     return True
 
