@@ -59,7 +59,9 @@ def _listing(groups, labels=None):
 
 
 class _ProgressLines:
-    """Progress lines on stderr: at every stage change and end, and at least every ``interval`` seconds.
+    """Progress lines on stderr: at every stage change and end, at the first step of each part of a stage (a new
+    label: the message before its count, "Measuring the loss of the targets and both fits" of "...: 0/5856"),
+    and at least every ``interval`` seconds.
 
     A thread prints the latest progress when no line came for ``interval`` seconds, so a pipeline log never goes
     quiet; when the pipeline has not yielded for half of that or more (one long step, such as packing or the
@@ -70,6 +72,7 @@ class _ProgressLines:
         self.interval = interval
         self._latest = None
         self._stage = None
+        self._label = None
         self._printed = self._changed = time.monotonic()
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -87,9 +90,10 @@ class _ProgressLines:
         with self._lock:
             now = time.monotonic()
             self._latest, self._changed = progress, now
-            if (progress.stage != self._stage or progress.done == progress.total
+            label = progress.message.split(": ", 1)[0]
+            if (progress.stage != self._stage or label != self._label or progress.done == progress.total
                     or now - self._printed >= self.interval):
-                self._stage = progress.stage
+                self._stage, self._label = progress.stage, label
                 self._print(progress, now)
 
     def _print(self, progress, now, waiting=None):

@@ -3,7 +3,7 @@ import threading
 import time
 
 __all__ = ["run_generator", "report_while_waiting", "relay_stage", "InThread", "wait_for_threads", "RunProgress",
-           "format_seconds"]
+           "StageParts", "format_seconds"]
 
 
 def run_generator(generator, progress=None):
@@ -148,9 +148,11 @@ class RunProgress:
         Stage name -> expected share of the run's time, in the order the stages run (normalized to sum 1).
     clock : callable, optional
         Seconds as a float; ``time.perf_counter`` by default (tests pass their own).
+    started : float, optional
+        The clock's reading when the run started; by default, the construction's.
     """
 
-    def __init__(self, shares, *, clock=time.perf_counter):
+    def __init__(self, shares, *, clock=time.perf_counter, started=None):
         total = sum(shares.values())
         if not shares or total <= 0 or any(share < 0 for share in shares.values()):
             raise ValueError(f"stage shares must be non-negative with a positive sum, got {shares}")
@@ -160,7 +162,7 @@ class RunProgress:
             self._start[stage] = (before / total, share / total)
             before += share
         self._clock = clock
-        self._started = clock()
+        self._started = clock() if started is None else started
         self._fraction = 0.0
         self._skipped = 0.0
 
@@ -186,6 +188,54 @@ class RunProgress:
         """Record that ``done`` of ``total`` units of ``stage`` were done before this run (reused results, a
         stage resumed from a checkpoint); call it before the stage's first :meth:`update`."""
         self._skipped += self._share_of(stage, done, total)
+
+
+class StageParts:
+    """A stage made of parts of known shares of its time: each part's count reported as the whole stage's.
+
+    A stage whose parts each count their own units (faces measured, iterations, faces measured again) and report
+    them as the stage's ``(done, total)`` reaches ``total`` with the first part that finishes counting, so the
+    run's bar stands at the stage's end for all the parts after it. Here the parts' expected shares of the
+    stage's time (a :class:`RunProgress` of the parts) turn each part's count into the stage's fraction, reported
+    in ``units``; the line names the part's own count and the time left in the whole stage at its rate so far.
+
+    Parameters
+    ----------
+    name : str
+        The pipeline stage the parts belong to (passed on to ``step``).
+    shares : dict of str to float
+        Part name -> expected share of the stage's time, in the order the parts run.
+    step : callable
+        ``step(name, done, total, line)`` of the pipeline.
+    units : int, optional
+        The stage's ``total`` (its fraction is reported in ``1 / units`` steps).
+    clock : callable, optional
+        As :class:`RunProgress`'s.
+    started : float, optional
+        The clock's reading when the stage started; by default, the construction's.
+    """
+
+    def __init__(self, name, shares, step, *, units=1000, clock=time.perf_counter, started=None):
+        self._parts = RunProgress(shares, clock=clock, started=started)
+        self._name = name
+        self._step = step
+        self._units = int(units)
+
+    def step(self, part, done, total, label):
+        """``step(name, stage units done, units, "label: done/total, ... left in this stage")`` for ``done`` of
+        ``total`` units of ``part``."""
+        fraction, left = self._parts.update(part, done, total)
+        text = f", {format_seconds(left)} left in this stage" if left is not None else ""
+        return self._step(self._name, round(fraction * self._units), self._units, f"{label}: {done}/{total}{text}")
+
+    def relay(self, stage, part, label):
+        """Generator: re-yield ``stage``'s ``(done, total)`` as :meth:`step` of ``part``; returns its value."""
+        while True:
+            try:
+                done, total = next(stage)
+            except StopIteration as finished:
+                return finished.value
+            yield self.step(part, done, total, label)
 
 
 def format_seconds(seconds):

@@ -146,10 +146,10 @@ def test_a_gltf_requiring_an_extension_blender_cannot_read_is_refused_with_what_
 
 
 # The triangle-wise stage's first line: the signal lands in that stage (on this small patch the whole stage can take
-# less than half a second). The mesh-wise stage's first line and a few hundredths of a second: the signal lands
+# less than half a second). The mesh-wise fit's first line and a few hundredths of a second: the signal lands
 # while a fit iterates in its thread, which a cancelled run once left running into the interpreter's shutdown
 # (exit 120 in most runs).
-@pytest.mark.parametrize("marker, delay", [("[triangle]", 0.0), ("Finding the textured triangles", 0.07)],
+@pytest.mark.parametrize("marker, delay", [("[triangle]", 0.0), ("Mesh-wise fit, with and without", 0.07)],
                          ids=["triangle-wise", "mesh-wise"])
 def test_sigterm_leaves_no_partial_files(patch_blend, tmp_path, marker, delay):
     out = tmp_path / "out" / "o.blend"

@@ -173,6 +173,40 @@ def test_reading_and_signal_stretch_hand_control_back_step_by_step(registered, s
     assert sum(stage == "pack" for stage, _ in steps) >= 1 + 2 * 2
 
 
+def test_the_mesh_wise_stage_moves_the_bar_through_each_of_its_parts(registered, spot_obj):
+    """Each part of the mesh-wise stage counts its own units in its line, and the stage's fraction is the shares
+    of the parts before it plus its share times its count (bridge.meshwise_stage.PART_SHARES): the signal stretch
+    counting every face does not take the bar to the stage's end, and the loss pass of the targets and both fits,
+    which ends the stage, has lines of its own counting the optimized faces."""
+    import re
+
+    from perceptual_uv.bridge.meshwise_stage import PART_SHARES
+
+    obj = spot_patch(spot_obj, above=1.0)
+    run, steps = optimize_objects([obj], OptimizeSettings(**FAST)), []
+    while True:
+        try:
+            steps.append(next(run))
+        except StopIteration as finished:
+            report = finished.value.report
+            break
+    mesh = [step for step in steps if step.stage == "mesh"]
+    shares = list(PART_SHARES.values())
+    before_loss_pass = sum(shares[:list(PART_SHARES).index("loss pass")]) / sum(shares)
+    signal = [step for step in mesh if step.message.startswith("Measuring the texture's signal stretch: ")]
+    assert signal and all(step.done / step.total <= shares[0] / sum(shares) + 1e-3 for step in signal)
+    passes = [step for step in mesh if step.message.startswith("Measuring the loss of the targets and both fits: ")]
+    counts = [tuple(map(int, re.search(r": (\d+)/(\d+)", step.message).groups())) for step in passes]
+    assert counts[-1] == (report["optimized_triangles"], report["optimized_triangles"])
+    for step, (done, total) in zip(passes, counts):
+        expected = before_loss_pass + PART_SHARES["loss pass"] / sum(shares) * done / total
+        assert step.total == 1000 and step.done == round(1000 * expected)
+    fractions = [step.done / step.total for step in mesh]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    # The run's bar: short of the stage's end until the loss pass is done.
+    assert passes[0].fraction < mesh[-1].fraction
+
+
 def test_the_largest_view_reaches_both_triangle_wise_calls(registered, spot_obj, monkeypatch):
     from perceptual_uv.bridge.pipeline import run_to_end
     from perceptual_uv.core import loss_passes, trianglewise

@@ -1,7 +1,7 @@
 """Whole-run progress: fraction from stage shares, time left, and the CLI's progress lines."""
 import pytest
 
-from perceptual_uv.core.progress import RunProgress, format_seconds
+from perceptual_uv.core.progress import RunProgress, StageParts, format_seconds
 
 
 class FakeClock:
@@ -59,6 +59,40 @@ def test_no_time_left_before_a_hundredth_of_the_run():
     assert run.update("a", 2, 200)[1] == pytest.approx(1 * 0.99 / 0.01)
 
 
+def test_stage_parts_report_each_part_as_its_share_of_the_stage():
+    clock = FakeClock()
+    steps = []
+    parts = StageParts("mesh", {"short": 1, "long": 3}, lambda *step: steps.append(step) or step, clock=clock)
+    clock.now += 10
+    parts.step("short", 1, 2, "Short")  # 0.25 * 1/2 of the stage in 10 s: 0.875 of it left, 70 s
+    clock.now += 10
+    parts.step("short", 2, 2, "Short")  # 0.25 in 20 s: 60 s left
+    parts.step("long", 0, 30, "Long")  # a part starting does not move the bar back
+    clock.now += 40
+    parts.step("long", 10, 30, "Long")  # 0.25 + 0.75 * 1/3 = 0.5 in 60 s: 60 s left
+    assert steps == [("mesh", 125, 1000, "Short: 1/2, 1 min 10 s left in this stage"),
+                     ("mesh", 250, 1000, "Short: 2/2, 1 min 00 s left in this stage"),
+                     ("mesh", 250, 1000, "Long: 0/30, 1 min 00 s left in this stage"),
+                     ("mesh", 500, 1000, "Long: 10/30, 1 min 00 s left in this stage")]
+
+
+def test_stage_parts_relay_a_part_and_return_its_value():
+    clock = FakeClock()
+    parts = StageParts("mesh", {"a": 1, "b": 1}, lambda *step: step, clock=clock, started=clock.now - 5)
+
+    def counting():
+        yield 1, 4
+        yield 4, 4
+        return "value"
+
+    relay = parts.relay(counting(), "b", "B")
+    assert next(relay) == ("mesh", 625, 1000, "B: 1/4, 3 s left in this stage")  # 0.625 in 5 s
+    assert next(relay) == ("mesh", 1000, 1000, "B: 4/4, 0 s left in this stage")
+    with pytest.raises(StopIteration) as finished:
+        next(relay)
+    assert finished.value.value == "value"
+
+
 def test_bad_shares_are_refused():
     for shares in ({}, {"a": 0}, {"a": -1, "b": 2}):
         with pytest.raises(ValueError):
@@ -90,6 +124,22 @@ def test_cli_lines_at_stage_changes_and_during_a_long_step(capsys):
     assert 2 <= len(heartbeat) <= 4
     assert all(line.startswith("[pack] Packing islands · 80% of the run, 30 s left (this step running for ")
                for line in heartbeat)
+
+
+def test_cli_lines_at_the_first_step_of_each_part_of_a_stage(capsys):
+    from perceptual_uv.bridge.batch import _ProgressLines
+    from perceptual_uv.bridge.pipeline import Progress
+
+    with _ProgressLines(interval=60.0) as lines:
+        for done in range(3):
+            lines.update(Progress("mesh", 10 + done, 1000, f"Measuring the texture's signal stretch: {done}/2", 0.8,
+                                  9.0))
+        for done in range(3):
+            lines.update(Progress("mesh", 400 + done, 1000, f"Mesh-wise fit, with and without rotation targets: "
+                                  f"{done}/202", 0.85, 8.0))
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["[mesh] Measuring the texture's signal stretch: 0/2 · 80% of the run, 9 s left",
+                   "[mesh] Mesh-wise fit, with and without rotation targets: 0/202 · 85% of the run, 8 s left"]
 
 
 def test_cli_heartbeat_lines_name_no_long_step_while_the_pipeline_yields(capsys):
