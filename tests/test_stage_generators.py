@@ -33,7 +33,9 @@ def test_iter_losses_yield_face_counts_and_return_the_losses():
     losses = run_generator(lp.iter_losses_at(V, F, uv, texture(), new_uv, workers=1, chunk_size=3),
                            lambda *step: progress.append(step))
     # the start, the workers' shared state (one step between the view sizes and the one-rings), then each chunk
-    assert progress == [(0, 8), (0, 8), (3, 8), (6, 8), (8, 8)]
+    # (3, 3 and 2 faces, in the chunks' order)
+    assert progress[:2] == [(0, 8), (0, 8)] and progress[-1] == (8, 8) and len(progress) == 5
+    assert sorted(b[0] - a[0] for a, b in zip(progress[1:], progress[2:])) == [2, 3, 3]
     np.testing.assert_array_equal(losses, lp.losses_at(V, F, uv, texture(), new_uv))
     params = np.tile([0.0, 0.7, 0.6, 0.0], (8, 1))
     progress = []
@@ -274,3 +276,16 @@ def test_the_two_meshwise_fits_iterate_at_the_same_time(monkeypatch):
     assert any(a[0] != b[0] and a[1] < b[2] and b[1] < a[2] for a in solves for b in solves)
     for made, expected in zip(fit.fits, one_after_the_other):
         np.testing.assert_array_equal(made.uv, expected)
+
+
+def test_chunks_of_neighbouring_faces_come_in_a_fixed_order_that_samples_the_whole_mesh():
+    """The workers' chunks hold consecutive faces and come in a fixed pseudo-random order: the first chunks done
+    are a sample of the whole mesh (its costly faces are often neighbours in the face order), the same in every
+    run."""
+    faces = np.arange(100, 260)
+    chunks = worker_pool._chunks(faces, 16)
+    assert sorted(chunk[0] for chunk in chunks) == list(range(100, 260, 16))
+    assert all(np.array_equal(chunk, np.arange(chunk[0], chunk[0] + 16)) for chunk in chunks)
+    assert [chunk[0] for chunk in chunks] == [chunk[0] for chunk in worker_pool._chunks(faces, 16)]
+    assert {chunk[0] >= 180 for chunk in chunks[:2]} == {False, True}  # both halves of the mesh in the first two
+    assert [len(chunk) for chunk in worker_pool._chunks(np.arange(10), 4)] in ([4, 4, 2], [4, 2, 4], [2, 4, 4])
