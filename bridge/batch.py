@@ -8,6 +8,7 @@ import contextlib
 import json
 import os
 import pathlib
+import re
 import sys
 import tempfile
 import threading
@@ -58,10 +59,14 @@ def _listing(groups, labels=None):
     return "; ".join(f"{image.name}: {', '.join(labels.get(o.name, o.name) for o in objs)}" for image, objs in groups)
 
 
+# A progress message's count and what follows it: ": 12/5856, 9 s left in this stage".
+_COUNT = re.compile(r": \d+/\d+\b.*$")
+
+
 class _ProgressLines:
     """Progress lines on stderr: at every stage change and end, at the first step of each part of a stage (a new
-    label: the message before its count, "Measuring the loss of the targets and both fits" of "...: 0/5856"),
-    and at least every ``interval`` seconds.
+    label: the message without its count, "Measuring the loss of the targets and both fits" of "...: 0/5856, 9 s
+    left in this stage"), and at least every ``interval`` seconds.
 
     A thread prints the latest progress when no line came for ``interval`` seconds, so a pipeline log never goes
     quiet; when the pipeline has not yielded for half of that or more (one long step, such as packing or the
@@ -90,7 +95,7 @@ class _ProgressLines:
         with self._lock:
             now = time.monotonic()
             self._latest, self._changed = progress, now
-            label = progress.message.split(": ", 1)[0]
+            label = _COUNT.sub("", progress.message)
             if (progress.stage != self._stage or label != self._label or progress.done == progress.total
                     or now - self._printed >= self.interval):
                 self._stage, self._label = progress.stage, label

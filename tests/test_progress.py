@@ -137,9 +137,18 @@ def test_cli_lines_at_the_first_step_of_each_part_of_a_stage(capsys):
         for done in range(3):
             lines.update(Progress("mesh", 400 + done, 1000, f"Mesh-wise fit, with and without rotation targets: "
                                   f"{done}/202", 0.85, 8.0))
+        prefix = "Texture 2 of 2 ('wood: dark' on Shelf): "  # a job of several textures names each run's
+        for part in ("Finding the textured triangles", "Setting the mesh-wise fit's targets"):
+            for done in range(2):
+                lines.update(Progress("mesh", 500 + done, 1000, f"{prefix}{part}: {done}/2, 3 s left in this stage",
+                                      0.9, 2.0))
     err = capsys.readouterr().err.splitlines()
     assert err == ["[mesh] Measuring the texture's signal stretch: 0/2 · 80% of the run, 9 s left",
-                   "[mesh] Mesh-wise fit, with and without rotation targets: 0/202 · 85% of the run, 8 s left"]
+                   "[mesh] Mesh-wise fit, with and without rotation targets: 0/202 · 85% of the run, 8 s left",
+                   f"[mesh] {prefix}Finding the textured triangles: 0/2, 3 s left in this stage · 90% of the run, 2 s "
+                   "left",
+                   f"[mesh] {prefix}Setting the mesh-wise fit's targets: 0/2, 3 s left in this stage · 90% of the run, "
+                   "2 s left"]
 
 
 def test_cli_heartbeat_lines_name_no_long_step_while_the_pipeline_yields(capsys):
