@@ -15,7 +15,6 @@ No bpy here: the stage runs on the arrays the pipeline read.
 import dataclasses
 import hashlib
 import pathlib
-import time
 
 import numpy as np
 
