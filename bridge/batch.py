@@ -78,6 +78,7 @@ class _ProgressLines:
         self._latest = None
         self._stage = None
         self._label = None
+        self._line = None
         self._printed = self._changed = time.monotonic()
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -96,15 +97,22 @@ class _ProgressLines:
             now = time.monotonic()
             self._latest, self._changed = progress, now
             label = _COUNT.sub("", progress.message)
-            if (progress.stage != self._stage or label != self._label or progress.done == progress.total
+            # A stage's last steps (its workers stopping) repeat its end: one line for them.
+            ended = progress.done == progress.total and self._line != self._text(progress)
+            if (progress.stage != self._stage or label != self._label or ended
                     or now - self._printed >= self.interval):
                 self._stage, self._label = progress.stage, label
                 self._print(progress, now)
 
+    @staticmethod
+    def _text(progress):
+        return f"[{progress.stage}] {progress.line()}"
+
     def _print(self, progress, now, waiting=None):
         long_step = waiting is not None and waiting >= self.interval / 2
         suffix = f" (this step running for {format_seconds(waiting)})" if long_step else ""
-        _log(f"[{progress.stage}] {progress.line()}{suffix}")
+        self._line = self._text(progress)
+        _log(f"{self._line}{suffix}")
         self._printed = now
 
     def _heartbeat(self):

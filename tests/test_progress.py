@@ -151,6 +151,19 @@ def test_cli_lines_at_the_first_step_of_each_part_of_a_stage(capsys):
                    "2 s left"]
 
 
+def test_cli_prints_a_stage_end_repeated_by_its_last_steps_once(capsys):
+    from perceptual_uv.bridge.batch import _ProgressLines
+    from perceptual_uv.bridge.pipeline import Progress
+
+    with _ProgressLines(interval=60.0) as lines:
+        lines.update(Progress("triangle", 0, 8, "Triangle-wise optimization: 0/8", 0.01, None))
+        for _ in range(4):  # the workers stopping: the same end again at each step
+            lines.update(Progress("triangle", 8, 8, "Triangle-wise optimization: 8/8", 0.75, 7.0))
+    assert capsys.readouterr().err.splitlines() == [
+        "[triangle] Triangle-wise optimization: 0/8 · 1% of the run",
+        "[triangle] Triangle-wise optimization: 8/8 · 75% of the run, 7 s left"]
+
+
 def test_cli_heartbeat_lines_name_no_long_step_while_the_pipeline_yields(capsys):
     import time
 
