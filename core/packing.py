@@ -248,17 +248,18 @@ class _Layout:
                                       int(boxes.min(axis=1).max()))
         return self._bitmaps[density]
 
-    def place(self, density, width, height, *, every_order=False):
+    def place(self, density, width, height, *, every_order=False, first_order=0):
         """Generator: the charts at ``density`` placed in a ``width x height`` image in the first of the placing
-        orders that fits, or None if none does; with ``every_order``, the list of the packings of every order
-        that fits. Yields after each bitmap made and each chart placed."""
+        orders from ``first_order`` on that fits, as ``(order, packing)``, or None if none does; with
+        ``every_order``, the list of ``(order, packing)`` of every such order that fits. Yields after each bitmap
+        made and each chart placed."""
         bitmaps, orders, _, narrowest = yield from self.bitmaps(density)
         found = []
         if min(width, height) >= narrowest and max(width, height) <= _MAX_SIDE:
-            for chart_order in orders:
-                placed = yield from _place_all(bitmaps, chart_order, width, limit=height)
+            for order in range(first_order, len(orders)):
+                placed = yield from _place_all(bitmaps, orders[order], width, limit=height)
                 if placed is not None:
-                    found.append(self._packing(bitmaps, density, width, height, *placed[:2]))
+                    found.append((order, self._packing(bitmaps, density, width, height, *placed[:2])))
                     if not every_order:
                         break
         if every_order:
@@ -312,20 +313,15 @@ def _pack_into(layout, sizes, density):
     with it), and the densest result wins, the earlier size (then order) of equals. The sizes share one density
     search, so they share its bitmaps too.
     """
-    # generator: the packings in ``candidates`` that fit at ``density``, the first one only unless ``every``
-    def attempt(density, candidates=sizes, every=False):
-        found = []
+    # generator: the first size's packing that fits at ``density`` as ``[(order, packing)]``, or ``[]``
+    def attempt(density):
         if layout.too_dense(density):
-            return found
-        for width, height in candidates:
-            if every:
-                found.extend((yield from layout.place(density, width, height, every_order=True)))
-                continue
-            packing = yield from layout.place(density, width, height)
-            if packing is not None:
-                found.append(packing)
-                break
-        return found
+            return []
+        for width, height in sizes:
+            placed = yield from layout.place(density, width, height)
+            if placed is not None:
+                return [placed]
+        return []
 
     best = yield from attempt(density)
     too_dense = None
@@ -351,9 +347,14 @@ def _pack_into(layout, sizes, density):
         if finer:
             density, best = candidate, finer
             break
-    # the sizes before the first that fits do not fit; that one in other orders and those after it may
-    best = yield from attempt(density, sizes[sizes.index(best[0].size):], every=True)
-    return max((_fill(packing, layout.margin) for packing in best), key=lambda packing: packing.texels_per_unit)
+    # the sizes before the first that fits do not fit; that one in the orders after the one that fitted, and those
+    # after it in every order, may
+    (order, packing), = best
+    first = sizes.index(packing.size)
+    for index in range(first, len(sizes)):
+        best.extend((yield from layout.place(density, *sizes[index], every_order=True,
+                                             first_order=order + 1 if index == first else 0)))
+    return max((_fill(packing, layout.margin) for _, packing in best), key=lambda packing: packing.texels_per_unit)
 
 
 def _fill(packing, margin):
@@ -380,7 +381,8 @@ def _pack_at(layout, density, aspects):
     best = None
     for aspect in aspects:
         def attempt(side):  # generator: the packing in the image of this side, or None
-            return (yield from layout.place(density, *aspect_size(side, aspect)))
+            placed = yield from layout.place(density, *aspect_size(side, aspect))
+            return None if placed is None else placed[1]
 
         # the image's shorter side holds the widest chart's narrower side; its pixels hold the charts'
         start = max(int(np.ceil(narrowest / min(np.sqrt(aspect), 1 / np.sqrt(aspect)))), int(np.ceil(np.sqrt(total))))

@@ -281,6 +281,27 @@ def test_charts_that_do_not_fit_largest_first_are_placed_longest_perimeter_first
     assert pack_charts(uv, face_chart, margin=0, resolution=10).texels_per_unit > 0.99
 
 
+def test_no_placing_try_is_made_twice(monkeypatch):
+    """The last step tries the first size that fits in the orders after the one that fitted and the sizes after it
+    in every order; the tries before (the density search's) are never made again."""
+    from perceptual_uv.core import packing as packing_module
+
+    tries = []
+    place_all = packing_module._place_all
+
+    def recording(bitmaps, chart_order, width, *, limit):
+        tries.append((id(bitmaps), tuple(chart_order), width, limit))  # one bitmaps list per density
+        return (yield from place_all(bitmaps, chart_order, width, limit=limit))
+
+    monkeypatch.setattr(packing_module, "_place_all", recording)
+    # The four rectangles above: largest first never fits them at their own density, the second order does.
+    uv, face_chart = charts_of([(0, 0, 7, 6), (20, 0, 4, 5), (40, 0, 7, 1), (60, 0, 4, 3)])
+    for aspects in ((1.0,), (1.0, 4 / 3, 3 / 4)):
+        tries.clear()
+        pack_charts(uv, face_chart, margin=0, resolution=10, aspects=aspects)
+        assert len(tries) == len(set(tries)) > 0
+
+
 def test_image_sizes_keep_to_the_square_pixel_count():
     from perceptual_uv.core.packing import image_sizes
 
