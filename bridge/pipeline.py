@@ -52,9 +52,10 @@ class Progress:
         return f"{self.message} · {self.fraction:.0%} of the run{left}"
 
 
-# Expected share of a run's time per stage, in the order they run: the mean shares of spot, bob, CesiumMan and
-# BoomBox at the default settings on 2 workers (bench/pipeline.py; README "How long it takes").
-STAGE_SHARES = {"read": 0.01, "triangle": 0.74, "mesh": 0.23, "pack": 0.01, "bake": 0.01, "loss": 0.0, "done": 0.0}
+# Expected share of a run's time per stage, in the order they run: the mean shares over the tuning set (spot,
+# CesiumMan, WaterBottle, Avocado, tea_set_01, wooden_bookshelf_worn) at the default settings on 2 workers
+# (bench/pipeline.py at 910fb37; README "How long it takes").
+STAGE_SHARES = {"read": 0.01, "triangle": 0.831, "mesh": 0.115, "pack": 0.006, "bake": 0.038, "loss": 0.0, "done": 0.0}
 
 
 @dataclasses.dataclass
