@@ -249,10 +249,9 @@ class _Layout:
         return self._bitmaps[density]
 
     def place(self, density, width, height, *, every_order=False, first_order=0):
-        """Generator: the charts at ``density`` placed in a ``width x height`` image in the first of the placing
-        orders from ``first_order`` on that fits, as ``(order, packing)``, or None if none does; with
-        ``every_order``, the list of ``(order, packing)`` of every such order that fits. Yields after each bitmap
-        made and each chart placed."""
+        """Generator: the charts at ``density`` placed in a ``width x height`` image in the placing orders from
+        ``first_order`` on, as a list of ``(order, packing)``: the first order that fits, or with ``every_order``
+        every one that fits; empty if none does. Yields after each bitmap made and each chart placed."""
         bitmaps, orders, _, narrowest = yield from self.bitmaps(density)
         found = []
         if min(width, height) >= narrowest and max(width, height) <= _MAX_SIDE:
@@ -262,9 +261,7 @@ class _Layout:
                     found.append((order, self._packing(bitmaps, density, width, height, *placed[:2])))
                     if not every_order:
                         break
-        if every_order:
-            return found
-        return found[0] if found else None
+        return found
 
     def _packing(self, bitmaps, density, width, height, positions, chosen):
         out = np.empty_like(self.uv)
@@ -318,9 +315,9 @@ def _pack_into(layout, sizes, density):
         if layout.too_dense(density):
             return []
         for width, height in sizes:
-            placed = yield from layout.place(density, width, height)
-            if placed is not None:
-                return [placed]
+            found = yield from layout.place(density, width, height)
+            if found:
+                return found
         return []
 
     best = yield from attempt(density)
@@ -381,8 +378,8 @@ def _pack_at(layout, density, aspects):
     best = None
     for aspect in aspects:
         def attempt(side):  # generator: the packing in the image of this side, or None
-            placed = yield from layout.place(density, *aspect_size(side, aspect))
-            return None if placed is None else placed[1]
+            found = yield from layout.place(density, *aspect_size(side, aspect))
+            return found[0][1] if found else None
 
         # the image's shorter side holds the widest chart's narrower side; its pixels hold the charts'
         start = max(int(np.ceil(narrowest / min(np.sqrt(aspect), 1 / np.sqrt(aspect)))), int(np.ceil(np.sqrt(total))))
