@@ -231,7 +231,7 @@ def _call(function, points, name):
     values = np.asarray(function(points), dtype=np.float64).reshape(-1)
     if values.shape[0] != points.shape[0]:
         raise ValueError(f"{name} returned {values.shape[0]} values for {points.shape[0]} points")
-    if not np.all(np.isfinite(values)):
+    if not np.isfinite(values).all():
         raise ValueError(f"{name} returned a non-finite value; the GP needs finite observations")
     return values
 
@@ -276,7 +276,9 @@ class _Search:
         self.V = np.empty((gp.X.shape[0], total))
         self.squares = np.zeros(total)
         self.pool_rows = 0
-        self._step_scales = np.repeat(self._SCALES, -(-local_size // len(self._SCALES)))[:local_size]
+        self._step_scales = np.repeat(self._SCALES, -(-local_size // len(self._SCALES)))[:local_size, None]
+        self._rows = np.arange(local_size)
+        self._even = self._rows % 2 == 0
 
     def hyperparameters_changed(self):
         self.pool_rows = 0
@@ -290,16 +292,14 @@ class _Search:
         """
         count, d = self.local_size, self.gp.dims
         length = np.minimum(np.exp(self.gp.log_length), 1.0)
-        scale = self._step_scales
         # Half of the steps start from the best point, the rest from any incumbent.
-        centres = incumbents[np.where(np.arange(count) % 2 == 0, 0,
-                                      self.rng.integers(0, len(incumbents), size=count))]
-        step = self.rng.standard_normal((count, d)) * scale[:, None] * length
+        centres = incumbents[np.where(self._even, 0, self.rng.integers(0, len(incumbents), size=count))]
+        step = self.rng.standard_normal((count, d)) * self._step_scales * length
         subset = self.rng.random((count, d)) < 1.0 / d
-        subset[np.arange(count), self.rng.integers(0, d, size=count)] = True
+        subset[self._rows, self.rng.integers(0, d, size=count)] = True
         subset[: count // 2] = True
         points = centres + np.where(subset, step, 0.0)
-        return np.where(self.periodic, np.mod(points, 1.0), np.clip(points, 0.0, 1.0))
+        return np.where(self.periodic, np.mod(points, 1.0), np.minimum(np.maximum(points, 0.0), 1.0))
 
     def select(self, acquisition, incumbents, batch_size):
         """Append ``batch_size`` pending points to the GP and return them (unit cube)."""

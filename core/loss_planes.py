@@ -38,6 +38,7 @@ References
 ----------
 Sun et al. 2022, Sec. 4.1.1, Eq. 3, 5, 8-11, 13-14, 17.
 """
+import functools
 import math
 from dataclasses import dataclass
 
@@ -312,6 +313,14 @@ def _aspect_ratio(shape, first):
     return 1.0 if w * h0 == h * w0 else (w / w0) / (h / h0)
 
 
+@functools.lru_cache(maxsize=1)
+def _kernel_modules():
+    """:mod:`.loss` and :mod:`.loss_stack`, imported on first use (:mod:`.loss` imports this module)."""
+    from . import loss, loss_stack
+
+    return loss, loss_stack
+
+
 @dataclass(frozen=True)
 class StackProblem:
     """E of one triangle over a stack of planes: the largest of its planes' E (see the module notes).
@@ -363,6 +372,7 @@ class StackProblem:
             groups.setdefault(tuple(plane.texture_shape), []).append(j)
         object.__setattr__(self, "_groups", tuple(tuple(g) for g in groups.values()))
         object.__setattr__(self, "_stacked", {})
+        object.__setattr__(self, "_calls", {})
 
     def _stacked_arrays(self, rows):
         """References (P, count) and reference gradients (P, m, m) of planes ``rows`` (one shape), cached."""
@@ -370,6 +380,22 @@ class StackProblem:
             self._stacked[rows] = (np.stack([self.planes[j].reference for j in rows]),
                                    np.stack([self.planes[j].reference_gradient for j in rows]))
         return self._stacked[rows]
+
+    def _planned_calls(self, within):
+        """The kernel calls :meth:`evaluate_planes` makes, per group of one shape: ``(rows, lead, ratio, stacked)``
+        with ``stacked`` the group's references and gradients (None for a plane alone), made once per ``within``
+        (whether every row of the call lies in the box, where constant planes cost nothing)."""
+        if within not in self._calls:
+            calls = []
+            first_shape = self.planes[0].texture_shape
+            for group in self._groups:
+                rows = tuple(j for j in group if not (self.planes[j].is_constant and within))
+                if rows:
+                    lead = self.planes[rows[0]]
+                    stacked = self._stacked_arrays(rows) if len(rows) > 1 else None
+                    calls.append((rows, lead, _aspect_ratio(lead.texture_shape, first_shape), stacked))
+            self._calls[within] = tuple(calls)
+        return self._calls[within]
 
     def evaluate_planes(self, params):
         """E of every plane for deformations of this triangle.
@@ -388,29 +414,26 @@ class StackProblem:
             ``E`` of plane ``j`` in column ``j``; exactly 0 for a plane that is not rendered (constant under the
             view and every row within the box, :attr:`active_planes`).
         """
-        from .loss import _check_params  # .loss imports this module
-
-        params = _check_params(params)
-        within = bool(np.all((np.abs(params[:, 1]) <= 1.0) & (np.abs(params[:, 2]) <= 1.0)))
+        loss, loss_stack = _kernel_modules()
+        params = loss._check_params(params)
+        lambdas = np.abs(params[:, 1:3])
+        calls = self._planned_calls(bool((lambdas <= 1.0).all()))
+        if len(calls) == 1 and len(calls[0][0]) == len(self.planes) and calls[0][2] == 1.0:
+            # Every plane in one group (the common case): the kernel's columns are the planes'.
+            _, lead, _, (references, gradients) = calls[0]
+            return loss_stack._evaluate_planes_kernel(params, lead.points, lead.pooled_index, lead.box, references,
+                                                      gradients, lead.centre, lead.ridge, loss.GMSD_C, True,
+                                                      loss_stack.DISSECTION_COST, loss_stack.PEEL_MIN_CELLS)
         out = np.zeros((len(params), len(self.planes)))
-        first_shape = self.planes[0].texture_shape
-        for group in self._groups:
-            rows = tuple(j for j in group if not (self.planes[j].is_constant and within))
-            if not rows:
-                continue
-            lead = self.planes[rows[0]]
-            ratio = _aspect_ratio(lead.texture_shape, first_shape)
+        for rows, lead, ratio, stacked in calls:
             own = params if ratio == 1.0 else conjugate_params(params, ratio)
-            if len(rows) == 1:
+            if stacked is None:
                 out[:, rows[0]] = lead.evaluate(own)
                 continue
-            from .gmsd import GMSD_C
-            from .loss_stack import DISSECTION_COST, PEEL_MIN_CELLS, _evaluate_planes_kernel
-
-            references, gradients = self._stacked_arrays(rows)
-            out[:, list(rows)] = _evaluate_planes_kernel(own, lead.points, lead.pooled_index, lead.box, references,
-                                                         gradients, lead.centre, lead.ridge, GMSD_C, True,
-                                                         DISSECTION_COST, PEEL_MIN_CELLS)
+            references, gradients = stacked
+            out[:, list(rows)] = loss_stack._evaluate_planes_kernel(
+                own, lead.points, lead.pooled_index, lead.box, references, gradients, lead.centre, lead.ridge,
+                loss.GMSD_C, True, loss_stack.DISSECTION_COST, loss_stack.PEEL_MIN_CELLS)
         return out
 
     def evaluate(self, params):

@@ -331,7 +331,7 @@ def optimize_triangle(problem, *, epsilon=0.01, evaluations=100, lambda_min=LAMB
 
     def loss(params):
         values = np.asarray(problem.evaluate(params), dtype=np.float64)
-        if not np.all(np.isfinite(values)):
+        if not np.isfinite(values).all():
             raise LossNotEvaluableError(f"face {problem.face}: E is not finite at some deformations of the box")
         seen_params.append(np.array(params, dtype=np.float64))
         seen_loss.append(values)

@@ -204,6 +204,25 @@ def test_gaussian_process_incremental_factor_equals_refactor_after_fit():
     np.testing.assert_allclose(incremental, gp.L[:gp.n, :gp.n], atol=1e-10)
 
 
+
+@pytest.mark.parametrize("n", [1, 2, 7, 8, 9, 17, 64, 101, 130])
+def test_gaussian_process_targets_standardized_by_numpy_mean_and_std_bit_for_bit(n):
+    # The GP's offset and scale are numpy's mean and population standard deviation of the targets exactly (its
+    # own reductions skip their wrappers), so runs do not depend on which of the two computed them.
+    rng = np.random.default_rng(n)
+    X = rng.random((n, 4))
+    y = rng.standard_normal(n) * 10.0 ** rng.uniform(-4, 4) + rng.uniform(-3, 3)
+    gp = gaussian_process._GaussianProcess(4, n, np.zeros(4, dtype=np.bool_))
+    for x in X:
+        gp.add(x)
+    gp.set_targets(y)
+    scale = float(np.std(y)) or 1.0  # a single target has no spread: it is only centred
+    assert gp.offset == float(np.mean(y))
+    assert gp.scale == scale
+    standardized = (y - np.mean(y)) / scale
+    np.testing.assert_allclose(gp.w, scipy.linalg.solve_triangular(gp.L[:n, :n], standardized, lower=True),
+                               rtol=1e-12, atol=1e-12)
+
 # --- optimization on functions with known minima ------------------------------------------------------------
 
 
