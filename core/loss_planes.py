@@ -418,7 +418,8 @@ class StackProblem:
         params = loss._check_params(params)
         lambdas = np.abs(params[:, 1:3])
         calls = self._planned_calls(bool((lambdas <= 1.0).all()))
-        if len(calls) == 1 and len(calls[0][0]) == len(self.planes) and calls[0][2] == 1.0:
+        if (len(calls) == 1 and len(calls[0][0]) == len(self.planes) and calls[0][2] == 1.0
+                and calls[0][3] is not None):
             # Every plane in one group (the common case): the kernel's columns are the planes'.
             _, lead, _, (references, gradients) = calls[0]
             return loss_stack._evaluate_planes_kernel(params, lead.points, lead.pooled_index, lead.box, references,

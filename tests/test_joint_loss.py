@@ -61,6 +61,9 @@ def test_one_plane_in_a_list_is_the_single_map_path_bit_for_bit(scene):
         np.testing.assert_array_equal(single[i].evaluate(params), listed[i].evaluate(params))
     colour = np.dstack([detail] * 3)  # grey RGB: luma equals the plane up to rounding of the weights
     assert texture_planes(colour)[0].shape == (64, 64) and len(texture_planes(colour)) == 1
+    # A stack of that one plane (as a caller may build it) is that plane too, one column.
+    stacked = StackProblem((single[0],))
+    np.testing.assert_array_equal(stacked.evaluate_planes(params), single[0].evaluate(params)[:, None])
 
 
 # --- (1) a flat plane adds nothing, in either order ---------------------------------------------------------
