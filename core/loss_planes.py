@@ -418,13 +418,6 @@ class StackProblem:
         params = loss._check_params(params)
         lambdas = np.abs(params[:, 1:3])
         calls = self._planned_calls(bool((lambdas <= 1.0).all()))
-        if (len(calls) == 1 and len(calls[0][0]) == len(self.planes) and calls[0][2] == 1.0
-                and calls[0][3] is not None):
-            # Every plane in one group (the common case): the kernel's columns are the planes'.
-            _, lead, _, (references, gradients) = calls[0]
-            return loss_stack._evaluate_planes_kernel(params, lead.points, lead.pooled_index, lead.box, references,
-                                                      gradients, lead.centre, lead.ridge, loss.GMSD_C, True,
-                                                      loss_stack.DISSECTION_COST, loss_stack.PEEL_MIN_CELLS)
         out = np.zeros((len(params), len(self.planes)))
         for rows, lead, ratio, stacked in calls:
             own = params if ratio == 1.0 else conjugate_params(params, ratio)
@@ -432,9 +425,12 @@ class StackProblem:
                 out[:, rows[0]] = lead.evaluate(own)
                 continue
             references, gradients = stacked
-            out[:, list(rows)] = loss_stack._evaluate_planes_kernel(
+            values = loss_stack._evaluate_planes_kernel(
                 own, lead.points, lead.pooled_index, lead.box, references, gradients, lead.centre, lead.ridge,
                 loss.GMSD_C, True, loss_stack.DISSECTION_COST, loss_stack.PEEL_MIN_CELLS)
+            if len(rows) == len(self.planes):  # every plane in this one call (the common case): its columns
+                return values
+            out[:, list(rows)] = values
         return out
 
     def evaluate(self, params):

@@ -204,7 +204,6 @@ def test_gaussian_process_incremental_factor_equals_refactor_after_fit():
     np.testing.assert_allclose(incremental, gp.L[:gp.n, :gp.n], atol=1e-10)
 
 
-
 @pytest.mark.parametrize("n", [1, 2, 7, 8, 9, 17, 64, 101, 130])
 def test_gaussian_process_targets_standardized_by_numpy_mean_and_std_bit_for_bit(n):
     # The GP's offset and scale are numpy's mean and population standard deviation of the targets exactly (its
@@ -222,6 +221,7 @@ def test_gaussian_process_targets_standardized_by_numpy_mean_and_std_bit_for_bit
     standardized = (y - np.mean(y)) / scale
     np.testing.assert_allclose(gp.w, scipy.linalg.solve_triangular(gp.L[:n, :n], standardized, lower=True),
                                rtol=1e-12, atol=1e-12)
+
 
 # --- optimization on functions with known minima ------------------------------------------------------------
 
