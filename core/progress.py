@@ -3,7 +3,7 @@ import threading
 import time
 
 __all__ = ["run_generator", "report_while_waiting", "relay_stage", "InThread", "wait_for_threads", "RunProgress",
-           "StageParts", "format_seconds"]
+           "StageParts", "format_seconds", "stage_line"]
 
 
 def run_generator(generator, progress=None):
@@ -225,8 +225,7 @@ class StageParts:
         """``step(name, stage units done, units, "label: done/total, ... left in this stage")`` for ``done`` of
         ``total`` units of ``part``."""
         fraction, left = self._parts.update(part, done, total)
-        text = f", {format_seconds(left)} left in this stage" if left is not None else ""
-        return self._step(self._name, round(fraction * self._units), self._units, f"{label}: {done}/{total}{text}")
+        return self._step(self._name, round(fraction * self._units), self._units, stage_line(label, done, total, left))
 
     def relay(self, stage, part, label):
         """Generator: re-yield ``stage``'s ``(done, total)`` as :meth:`step` of ``part``; returns its value."""
@@ -248,6 +247,12 @@ def format_seconds(seconds):
     return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
 
 
+def stage_line(label, done, total, left=None):
+    """A stage's progress line: ``"label: done/total"``, and ``", 1 min 05 s left in this stage"`` when ``left``
+    (seconds) is known."""
+    return f"{label}: {done}/{total}" + (f", {format_seconds(left)} left in this stage" if left is not None else "")
+
+
 def relay_stage(stage, name, label, started, step, *, message=None):
     """Generator: re-yield a stage's ``(done, total)`` progress as ``step(name, done, total, line)``; returns the
     stage's value.
@@ -267,8 +272,7 @@ def relay_stage(stage, name, label, started, step, *, message=None):
             continue
         first = done if first is None else first
         elapsed = time.perf_counter() - started
-        left = (f", {format_seconds(elapsed / (done - first) * (total - done))} left in this stage"
-                if done > first else "")
-        yield step(name, done, total, f"{label}: {done}/{total}{left}")
+        left = elapsed / (done - first) * (total - done) if done > first else None
+        yield step(name, done, total, stage_line(label, done, total, left))
 
 
