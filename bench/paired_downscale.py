@@ -1,9 +1,9 @@
 """The uniform downscale measured at the image memory of every shaded point of the other methods (issue 23).
 
 ``bench.compare --shaded`` compares methods at equal image memory by interpolating each method's log q between
-its own measured points. The shaded q of one layout moves by several per cent between image sides a few pixels
-apart (docs/research/2026-11-28-shaded-targets-and-resolution-noise.md), so the downscale interpolated to a
-memory is one side's luck. The downscale exists at every memory: this measures it at exactly the memory each
+its own measured points. The shaded q of one layout does not fall steadily with its image side: the downscale's
+moves by up to 20 % between sides one pixel apart (docs/research/2026-11-30-avocado-paired-downscale.md), so the
+downscale interpolated to a memory is one side's luck. The downscale exists at every memory: this measures it at exactly the memory each
 point of the other methods took, so that each comparison is between two measured renders of the same image
 memory, and summarizes the ratios.
 
@@ -99,8 +99,12 @@ def main(argv=None):
     if len(models) != 1:
         print(f"paired_downscale: {args.model} holds {len(models)} model files, not one", file=sys.stderr)
         return 2
-    data = json.loads(pathlib.Path(args.results).read_text())
-    if not data.get("table", {}).get("shaded"):
+    try:
+        data = json.loads(pathlib.Path(args.results).read_text())
+    except (OSError, ValueError) as error:
+        print(f"paired_downscale: cannot read {args.results}: {error}", file=sys.stderr)
+        return 2
+    if not isinstance(data, dict) or not data.get("table", {}).get("shaded") or "results" not in data:
         print(f"paired_downscale: {args.results} is not a shaded comparison", file=sys.stderr)
         return 2
     methods = [method for method in args.methods.split(",") if method]

@@ -46,3 +46,11 @@ def test_a_results_file_that_is_not_shaded_is_refused_in_one_line(tmp_path, caps
     results.write_text(json.dumps({"table": {"shaded": False}, "results": RESULTS}))
     assert paired_downscale.main([str(tmp_path / "m.obj"), "--results", str(results), "--out", str(tmp_path)]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_a_results_file_that_cannot_be_read_is_refused_in_one_line(tmp_path, capsys):
+    (tmp_path / "m.obj").write_text("v 0 0 0\n")
+    (tmp_path / "cut.json").write_text('{"table": ')
+    for results in (tmp_path / "missing.json", tmp_path / "cut.json"):
+        assert paired_downscale.main([str(tmp_path / "m.obj"), "--results", str(results), "--out", str(tmp_path)]) == 2
+        assert capsys.readouterr().err.count("\n") == 1
