@@ -3,9 +3,9 @@
 ``bench.compare --shaded`` compares methods at equal image memory by interpolating each method's log q between
 its own measured points. The shaded q of one layout does not fall steadily with its image side: the downscale's
 moves by up to 20 % between sides one pixel apart (docs/research/2026-11-30-avocado-paired-downscale.md), so the
-downscale interpolated to a memory is one side's luck. The downscale exists at every memory: this measures it at exactly the memory each
-point of the other methods took, so that each comparison is between two measured renders of the same image
-memory, and summarizes the ratios.
+downscale interpolated to a memory is one side's luck. The downscale exists at every memory: this measures it at
+exactly the memory each point of the other methods took, so that each comparison is between two measured renders
+of the same image memory, and summarizes the ratios.
 
 Usage (from /work, the repository's parent folder)::
 
@@ -76,7 +76,8 @@ def paired_table(results, downscale, methods):
 
 def paired_markdown(model, table, methods):
     lines = [f"## {model}: each point against the uniform downscale at its own image memory", "",
-             "| method | texel cost | memory | q | downscale q (its memory) | q / downscale's |", "|---|---|---|---|---|---|"]
+             "| method | texel cost | memory | q | downscale q (its memory) | q / downscale's |",
+             "|---|---|---|---|---|---|"]
     for method in methods:
         for row in table[method]:
             lines.append(f"| {method} | {row['target_cost']:g} | {row['memory']:.3f} | {row['q']:.4g} | "
