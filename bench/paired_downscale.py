@@ -56,12 +56,11 @@ def paired_table(results, downscale, methods):
         ``ratio`` (q over the downscale's), for the points whose downscale was measured; and under
         ``"geometric_mean"`` per method the geometric mean of its ratios (None without rows).
     """
-    by_point = {(method, cost): memory for method, cost, memory in points_to_pair(results, methods)}
     table, means = {}, {}
     for method in methods:
         rows = []
         for point in sorted(results[method]["points"], key=lambda point: point["target_cost"]):
-            memory = by_point.get((method, float(point["target_cost"])))
+            memory = float(point["memory_ratio"]) if point.get("memory_ratio") else None
             measured = downscale.get(repr(memory)) if memory is not None else None
             if measured is None:
                 continue
