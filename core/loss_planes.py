@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .gmsd import GMSD_C
 from .gmsd import luma as _to_luma
 from .progress import run_generator
 
@@ -427,7 +428,7 @@ class StackProblem:
             references, gradients = stacked
             values = loss_stack._evaluate_planes_kernel(
                 own, lead.points, lead.pooled_index, lead.box, references, gradients, lead.centre, lead.ridge,
-                loss.GMSD_C, True, loss_stack.DISSECTION_COST, loss_stack.PEEL_MIN_CELLS)
+                GMSD_C, True, loss_stack.DISSECTION_COST, loss_stack.PEEL_MIN_CELLS)
             if len(rows) == len(self.planes):  # every plane in this one call (the common case): its columns
                 return values
             out[:, list(rows)] = values
